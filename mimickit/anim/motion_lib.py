@@ -1,0 +1,199 @@
+"""MotionLib: a set of clips on one character, sampled and interpolated in batches (spec §4.3).
+
+All clips are concatenated along frames. Per frame it keeps root position/rotation, joint rotations
+and finite-difference velocities; queries take motion ids and times as tensors `[n]` and return
+batched tensors `[n, ...]`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from mimickit.anim.kin_char_model import KinCharModel
+from mimickit.anim.motion import LoopMode, Motion, load_motion
+from mimickit.util import torch_util as tu
+from mimickit.util.config import ConfigModel, load_config
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import resolve_data_path
+
+
+class DatasetEntry(ConfigModel):
+    file: str
+    weight: float = 1.0
+
+
+class DatasetConfig(ConfigModel):
+    motions: list[DatasetEntry]
+
+
+@dataclass
+class MotionFrame:
+    """A batch of reference states, each field `[n, ...]`."""
+
+    root_pos: torch.Tensor  # [n, 3]
+    root_rot: torch.Tensor  # [n, 4] xyzw
+    root_vel: torch.Tensor  # [n, 3] world frame, origin velocity
+    root_ang_vel: torch.Tensor  # [n, 3] world frame
+    joint_rot: torch.Tensor  # [n, J-1, 4] local
+    dof_vel: torch.Tensor  # [n, D]
+
+
+def load_motion_list(motion_file: str | Path) -> list[tuple[Path, float]]:
+    """(clip path, weight) pairs: a dataset yaml lists clips with weights; anything else is one clip."""
+    path = resolve_data_path(motion_file)
+    if path.suffix in (".yaml", ".yml"):
+        cfg = load_config(DatasetConfig, path)
+        if not cfg.motions:
+            raise MimicKitError(f"{path}: the dataset lists no motions")
+        out = []
+        for i, entry in enumerate(cfg.motions):
+            if entry.weight < 0:
+                raise MimicKitError(f"{path}: motions[{i}].weight must be >= 0, got {entry.weight}")
+            clip = resolve_data_path(entry.file)
+            if not clip.is_file():
+                raise MimicKitError(f"{path}: motions[{i}].file not found: {entry.file}")
+            out.append((clip, entry.weight))
+        return out
+    if not path.is_file():
+        raise MimicKitError(f"motion file not found: {motion_file}")
+    return [(path, 1.0)]
+
+
+class MotionLib:
+    def __init__(
+        self,
+        motion_file: str | Path | list[Motion],
+        char_model: KinCharModel,
+        device: torch.device | str = "cpu",
+        weights: list[float] | None = None,
+    ) -> None:
+        self.char_model = char_model
+        self.device = torch.device(device)
+        if isinstance(motion_file, (str, Path)):
+            entries = load_motion_list(motion_file)
+            motions = [load_motion(p) for p, _ in entries]
+            weights = [w for _, w in entries]
+            self.motion_files = [str(p) for p, _ in entries]
+        else:
+            motions = list(motion_file)
+            weights = weights or [1.0] * len(motions)
+            self.motion_files = ["<memory>"] * len(motions)
+        self._load(motions, weights)
+
+    # ------------------------------------------------------------------ loading
+    def _load(self, motions: list[Motion], weights: list[float]) -> None:
+        frame_size = 6 + self.char_model.get_dof_size()
+        for m, f in zip(motions, self.motion_files):
+            if m.frame_dim != frame_size:
+                raise MimicKitError(
+                    f"{f}: frames have {m.frame_dim} columns but the character "
+                    f"{self.char_model.source} needs {frame_size} (6 + {self.char_model.get_dof_size()} DoFs)"
+                )
+        w = torch.tensor(weights, dtype=torch.float32, device=self.device)
+        if w.sum() <= 0:
+            raise MimicKitError("motion weights sum to zero")
+        self._weights = w / w.sum()
+        dev = self.device
+        self._fps = torch.tensor([m.fps for m in motions], dtype=torch.float32, device=dev)
+        self._num_frames = torch.tensor([m.num_frames for m in motions], dtype=torch.long, device=dev)
+        self._length = (self._num_frames - 1).float() / self._fps
+        self._loop_mode = torch.tensor([int(m.loop_mode) for m in motions], dtype=torch.long, device=dev)
+        self._start = torch.cumsum(self._num_frames, 0) - self._num_frames
+
+        frames = torch.cat([torch.as_tensor(m.frames, dtype=torch.float32) for m in motions]).to(dev)
+        self.root_pos = frames[:, 0:3].contiguous()
+        self.root_rot = tu.quat_pos(tu.exp_map_to_quat(frames[:, 3:6]))
+        self.joint_rot = tu.quat_pos(self.char_model.dof_to_rot(frames[:, 6:]))
+        self.dof_pos = self.char_model.rot_to_dof(self.joint_rot)
+        self._compute_velocities(motions)
+
+    def _compute_velocities(self, motions: list[Motion]) -> None:
+        n = self.root_pos.shape[0]
+        fps = torch.repeat_interleave(self._fps, self._num_frames).unsqueeze(-1)
+        nxt = torch.clamp(torch.arange(n, device=self.device) + 1, max=n - 1)
+        self.root_vel = fps * (self.root_pos[nxt] - self.root_pos)
+        drot = tu.quat_mul(self.root_rot[nxt], tu.quat_conjugate(self.root_rot))
+        self.root_ang_vel = fps * tu.quat_to_exp_map(drot)
+        self.dof_vel = self.char_model.compute_dof_vel(self.joint_rot, self.joint_rot[nxt], 1.0) * fps
+        # The last frame of each clip would difference into the next clip: copy its predecessor.
+        last = self._start + self._num_frames - 1
+        prev = torch.clamp(last - 1, min=0)
+        prev = torch.maximum(prev, self._start)
+        for buf in (self.root_vel, self.root_ang_vel, self.dof_vel):
+            buf[last] = buf[prev]
+        single = self._num_frames == 1
+        for buf in (self.root_vel, self.root_ang_vel, self.dof_vel):
+            buf[last[single]] = 0.0
+        wrap = self.root_pos[last] - self.root_pos[self._start]
+        wrap[:, 2] = 0.0
+        self._wrap_delta = torch.where((self._loop_mode == LoopMode.WRAP).unsqueeze(-1), wrap, torch.zeros_like(wrap))
+
+    # ------------------------------------------------------------------ queries
+    def num_motions(self) -> int:
+        return int(self._num_frames.shape[0])
+
+    def get_num_motions(self) -> int:
+        return self.num_motions()
+
+    def get_total_length(self) -> float:
+        return float(self._length.sum())
+
+    def get_motion_weights(self) -> torch.Tensor:
+        return self._weights
+
+    def get_motion_length(self, ids: torch.Tensor) -> torch.Tensor:
+        return self._length[ids]
+
+    def get_motion_loop_mode(self, ids: torch.Tensor) -> torch.Tensor:
+        return self._loop_mode[ids]
+
+    def get_motion_fps(self, ids: torch.Tensor) -> torch.Tensor:
+        return self._fps[ids]
+
+    def get_motion_frame_size(self) -> int:
+        return 6 + self.char_model.get_dof_size()
+
+    def sample_motions(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        return torch.multinomial(self._weights, n, replacement=True, generator=generator)
+
+    def sample_time(self, ids: torch.Tensor, truncate_time: float | None = None) -> torch.Tensor:
+        phase = torch.rand(ids.shape, device=self.device)
+        length = self._length[ids]
+        if truncate_time is not None:
+            length = torch.clamp(length - truncate_time, min=0.0)
+        return phase * length
+
+    def calc_motion_phase(self, ids: torch.Tensor, times: torch.Tensor) -> torch.Tensor:
+        length = self._length[ids]
+        phase = times / length.clamp_min(1e-8)
+        wrap = self._loop_mode[ids] == LoopMode.WRAP
+        phase = torch.where(wrap, phase - torch.floor(phase), phase)
+        return phase.clamp(0.0, 1.0)
+
+    def calc_motion_frame(self, ids: torch.Tensor, times: torch.Tensor) -> MotionFrame:
+        i0, i1, blend = self._frame_blend(ids, times)
+        b = blend.unsqueeze(-1)
+        root_pos = (1.0 - b) * self.root_pos[i0] + b * self.root_pos[i1]
+        root_rot = tu.slerp(self.root_rot[i0], self.root_rot[i1], b)
+        joint_rot = tu.slerp(self.joint_rot[i0], self.joint_rot[i1], b.unsqueeze(-1))
+        length = self._length[ids]
+        cycles = torch.floor(times / length.clamp_min(1e-8))
+        cycles = torch.where(self._loop_mode[ids] == LoopMode.WRAP, cycles, torch.zeros_like(cycles))
+        root_pos = root_pos + cycles.unsqueeze(-1) * self._wrap_delta[ids]
+        return MotionFrame(root_pos, root_rot, self.root_vel[i0], self.root_ang_vel[i0], joint_rot, self.dof_vel[i0])
+
+    def joint_rot_to_dof(self, joint_rot: torch.Tensor) -> torch.Tensor:
+        return self.char_model.rot_to_dof(joint_rot)
+
+    def _frame_blend(self, ids: torch.Tensor, times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        phase = self.calc_motion_phase(ids, times)
+        nf = self._num_frames[ids]
+        f = phase * (nf - 1).float()
+        i0 = torch.clamp(f.long(), max=nf - 1)
+        i1 = torch.minimum(i0 + 1, nf - 1)
+        blend = (f - i0.float()).clamp(0.0, 1.0)
+        start = self._start[ids]
+        return start + i0, start + i1, blend

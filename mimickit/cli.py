@@ -1,0 +1,107 @@
+"""The `mimickit` command: `motion info|convert|validate`, and the training entry points.
+
+Every user mistake (bad clip, bad config, missing file) ends as one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from collections.abc import Callable
+
+from mimickit.util.errors import MimicKitError
+
+
+def _motion_info(args: argparse.Namespace) -> int:
+    from mimickit.anim.mjcf_char_model import load_char_model
+    from mimickit.tools.motion_report import format_info, motion_info
+
+    char = load_char_model(args.char) if args.char else None
+    infos = [motion_info(p, char) for p in args.paths]
+    if args.json:
+        print(json.dumps(infos, indent=1))
+    else:
+        print("\n".join(format_info(i) for i in infos))
+    return 0
+
+
+def _motion_validate(args: argparse.Namespace) -> int:
+    from mimickit.anim.mjcf_char_model import load_char_model
+    from mimickit.tools.motion_report import validate_motion
+
+    char = load_char_model(args.char) if args.char else None
+    bad = 0
+    for p in args.paths:
+        problems, notes = validate_motion(p, char)
+        for line in notes:
+            print(f"warning: {line}", file=sys.stderr)
+        if problems:
+            bad += 1
+            for line in problems:
+                print(line, file=sys.stderr)
+        else:
+            print(f"{p}: ok")
+    if bad:
+        print(f"{bad} of {len(args.paths)} file(s) invalid", file=sys.stderr)
+    return 1 if bad else 0
+
+
+def _motion_convert(args: argparse.Namespace) -> int:
+    from mimickit.anim.motion import save_motion
+    from mimickit.tools.deepmimic_convert import convert_deepmimic
+
+    if not args.out.endswith(".pkl"):
+        raise MimicKitError(f"output must be a .pkl file, got {args.out}")
+    motion = convert_deepmimic(args.input)
+    save_motion(args.out, motion)
+    print(f"wrote {args.out}: {motion.num_frames} frames at {motion.fps:g} fps, loop {motion.loop_mode.name.lower()}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mimickit", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    motion = sub.add_parser("motion", help="inspect, validate and convert motion clips")
+    msub = motion.add_subparsers(dest="motion_command", required=True)
+
+    info = msub.add_parser("info", help="fps, loop mode, frames, duration, NaN and limit report of clips")
+    info.add_argument("paths", nargs="+", help=".pkl clips")
+    info.add_argument("--char", help="MJCF character: also check frame width and joint limits")
+    info.add_argument("--json", action="store_true", help="print one JSON list, one object per clip")
+    info.set_defaults(func=_motion_info)
+
+    val = msub.add_parser("validate", help="exit non-zero and list the problems of each bad clip")
+    val.add_argument("paths", nargs="+")
+    val.add_argument("--char", help="MJCF character the clips must fit")
+    val.set_defaults(func=_motion_validate)
+
+    conv = msub.add_parser("convert", help="convert a DeepMimic text clip into a MimicKit humanoid .pkl")
+    conv.add_argument("input", help="DeepMimic humanoid3d clip (.txt, JSON)")
+    conv.add_argument("out", help="output .pkl")
+    conv.set_defaults(func=_motion_convert)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(build_parser(), argv)
+
+
+def run_cli(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
+    args = parser.parse_args(argv)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            return func(args)
+    except MimicKitError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

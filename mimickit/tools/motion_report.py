@@ -1,0 +1,107 @@
+"""What `mimickit motion info` and `validate` say about a clip."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mimickit.anim.kin_char_model import JointType, KinCharModel
+from mimickit.anim.motion import Motion, load_motion
+from mimickit.util.errors import MimicKitError
+
+
+def dof_names(char: KinCharModel) -> list[str]:
+    names = []
+    for joint in char.joints[1:]:
+        if joint.type == JointType.SPHERICAL:
+            names += [f"{joint.name}_{a}" for a in "xyz"]
+        elif joint.type == JointType.HINGE:
+            names.append(joint.name)
+    return names
+
+
+def limit_violations(motion: Motion, char: KinCharModel, tol: float = 1e-3) -> list[dict[str, Any]]:
+    """Per DoF outside the character's ranges: name, frames outside, worst excess (rad)."""
+    low, high = char.dof_limits()
+    dofs = motion.frames[:, 6:].astype(np.float64)
+    excess = np.maximum(dofs - high, low - dofs)
+    out = []
+    for d, name in enumerate(dof_names(char)):
+        bad = excess[:, d] > tol
+        if bad.any():
+            out.append({"dof": name, "frames": int(bad.sum()), "max_excess": round(float(excess[:, d].max()), 4)})
+    return out
+
+
+def motion_info(path: str | Path, char: KinCharModel | None = None) -> dict[str, Any]:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = load_motion(path)
+    info: dict[str, Any] = {
+        "path": str(path),
+        "fps": int(m.fps) if float(m.fps).is_integer() else m.fps,
+        "loop_mode": m.loop_mode.name.lower(),
+        "num_frames": m.num_frames,
+        "duration": round(m.duration, 6),
+        "frame_dim": m.frame_dim,
+        "nan_columns": list(m.nan_columns),
+    }
+    if char is not None:
+        check_frame_dim(m, char, path)
+        info["char"] = char.source
+        info["limit_violations"] = limit_violations(m, char)
+    return info
+
+
+def check_frame_dim(m: Motion, char: KinCharModel, path: str | Path) -> None:
+    need = 6 + char.get_dof_size()
+    if m.frame_dim != need:
+        raise MimicKitError(
+            f"{path}: frames have {m.frame_dim} columns but {char.source} needs {need} (6 + {char.get_dof_size()} DoFs)"
+        )
+
+
+def validate_motion(path: str | Path, char: KinCharModel | None = None) -> tuple[list[str], list[str]]:
+    """(problems, warnings) of one clip; no problems means it is valid.
+
+    Non-finite values are a warning, not a problem: the loader reads them as 0 (the official
+    `humanoid_walk.pkl` has NaN neck columns).
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = load_motion(path, sanitize_nan=False)
+    except MimicKitError as e:
+        return [str(e)], []
+    problems: list[str] = []
+    notes: list[str] = []
+    if m.nan_columns:
+        notes.append(f"{path}: non-finite values in columns {list(m.nan_columns)} (read as 0)")
+    if m.num_frames < 2:
+        problems.append(f"{path}: only {m.num_frames} frame(s); a clip needs at least 2")
+    if char is not None:
+        try:
+            check_frame_dim(m, char, path)
+        except MimicKitError as e:
+            problems.append(str(e))
+    return problems, notes
+
+
+def format_info(info: dict[str, Any]) -> str:
+    lines = [
+        f"{info['path']}",
+        f"  fps {info['fps']:g}, loop {info['loop_mode']}, {info['num_frames']} frames, "
+        f"{info['duration']:.3f} s, frame width {info['frame_dim']}",
+    ]
+    if info["nan_columns"]:
+        lines.append(f"  NaN columns {info['nan_columns']} (read as 0)")
+    if "limit_violations" in info:
+        v = info["limit_violations"]
+        if not v:
+            lines.append("  all joint values inside the character's limits")
+        for row in v:
+            lines.append(f"  {row['dof']}: {row['frames']} frames outside limits, worst by {row['max_excess']} rad")
+    return "\n".join(lines)

@@ -1,0 +1,179 @@
+"""Batched rotation math in torch.
+
+Quaternions are (x, y, z, w) with w last, as everywhere in the framework; MuJoCo's w-first order is
+converted only at the engine boundary (`quat_to_wxyz`, `quat_from_wxyz`). Every function accepts any
+leading batch shape `[..., 4]` / `[..., 3]`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+_EPS = 1e-5
+
+
+def quat_to_wxyz(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat([q[..., 3:4], q[..., 0:3]], dim=-1)
+
+
+def quat_from_wxyz(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat([q[..., 1:4], q[..., 0:1]], dim=-1)
+
+
+def quat_identity(shape: tuple[int, ...] = (), device: torch.device | str = "cpu") -> torch.Tensor:
+    q = torch.zeros(*shape, 4, device=device)
+    q[..., 3] = 1.0
+    return q
+
+
+def quat_normalize(q: torch.Tensor) -> torch.Tensor:
+    return q / torch.linalg.norm(q, dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def quat_pos(q: torch.Tensor) -> torch.Tensor:
+    """The same rotation with w >= 0 (a canonical sign)."""
+    return torch.where(q[..., 3:4] < 0, -q, q)
+
+
+def quat_conjugate(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat([-q[..., :3], q[..., 3:]], dim=-1)
+
+
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product a ⊗ b: rotate by b first, then by a."""
+    ax, ay, az, aw = a.unbind(-1)
+    bx, by, bz, bw = b.unbind(-1)
+    return torch.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        dim=-1,
+    )
+
+
+def quat_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Rotate vectors v [..., 3] by quaternions q [..., 4]."""
+    qv = q[..., :3]
+    w = q[..., 3:4]
+    t = 2.0 * torch.cross(qv, v, dim=-1)
+    return v + w * t + torch.cross(qv, t, dim=-1)
+
+
+def quat_rotate_inverse(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    return quat_rotate(quat_conjugate(q), v)
+
+
+def quat_from_axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """axis [..., 3] (normalised here), angle [...] in radians."""
+    axis = axis / torch.linalg.norm(axis, dim=-1, keepdim=True).clamp_min(1e-12)
+    half = 0.5 * angle.unsqueeze(-1)
+    return torch.cat([axis * torch.sin(half), torch.cos(half)], dim=-1)
+
+
+def quat_to_axis_angle(q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unit axis [..., 3] and angle [...] in [0, π]; axis (0, 0, 1) for near-identity rotations."""
+    q = quat_pos(quat_normalize(q))
+    v = q[..., :3]
+    sin_half = torch.linalg.norm(v, dim=-1)
+    angle = 2.0 * torch.atan2(sin_half, q[..., 3])
+    default = torch.zeros_like(v)
+    default[..., 2] = 1.0
+    small = (sin_half <= _EPS).unsqueeze(-1)
+    axis = torch.where(small, default, v / sin_half.clamp_min(1e-12).unsqueeze(-1))
+    angle = torch.where(sin_half <= _EPS, torch.zeros_like(angle), angle)
+    return axis, angle
+
+
+def quat_to_exp_map(q: torch.Tensor) -> torch.Tensor:
+    axis, angle = quat_to_axis_angle(q)
+    return axis * angle.unsqueeze(-1)
+
+
+def exp_map_to_quat(e: torch.Tensor) -> torch.Tensor:
+    """Exponential map (axis · angle) [..., 3] to a quaternion; the angle is wrapped to (−π, π]."""
+    angle = torch.linalg.norm(e, dim=-1)
+    axis = e / angle.clamp_min(1e-12).unsqueeze(-1)
+    wrapped = torch.atan2(torch.sin(angle), torch.cos(angle))
+    q = quat_from_axis_angle(axis, wrapped)
+    return torch.where((wrapped.abs() <= _EPS).unsqueeze(-1), quat_identity(e.shape[:-1], e.device).to(q), q)
+
+
+def quat_angle(q: torch.Tensor) -> torch.Tensor:
+    """Rotation angle in [0, π] of each quaternion."""
+    q = quat_pos(q)
+    return 2.0 * torch.atan2(torch.linalg.norm(q[..., :3], dim=-1), q[..., 3])
+
+
+def quat_diff_angle(q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
+    """Angle in [0, π] of the rotation between q0 and q1."""
+    return quat_angle(quat_mul(q1, quat_conjugate(q0)))
+
+
+def quat_to_tan_norm(q: torch.Tensor) -> torch.Tensor:
+    """The 6D tangent-normal encoding: R(q)·x then R(q)·z, [..., 6]."""
+    x = torch.zeros(*q.shape[:-1], 3, dtype=q.dtype, device=q.device)
+    z = torch.zeros_like(x)
+    x[..., 0] = 1.0
+    z[..., 2] = 1.0
+    return torch.cat([quat_rotate(q, x), quat_rotate(q, z)], dim=-1)
+
+
+def calc_heading(q: torch.Tensor) -> torch.Tensor:
+    """Yaw angle of the rotated x axis about world z, [...]."""
+    x = torch.zeros(*q.shape[:-1], 3, dtype=q.dtype, device=q.device)
+    x[..., 0] = 1.0
+    d = quat_rotate(q, x)
+    return torch.atan2(d[..., 1], d[..., 0])
+
+
+def calc_heading_quat(q: torch.Tensor) -> torch.Tensor:
+    z = torch.zeros(*q.shape[:-1], 3, dtype=q.dtype, device=q.device)
+    z[..., 2] = 1.0
+    return quat_from_axis_angle(z, calc_heading(q))
+
+
+def calc_heading_quat_inv(q: torch.Tensor) -> torch.Tensor:
+    z = torch.zeros(*q.shape[:-1], 3, dtype=q.dtype, device=q.device)
+    z[..., 2] = 1.0
+    return quat_from_axis_angle(z, -calc_heading(q))
+
+
+def slerp(q0: torch.Tensor, q1: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """Shortest-path spherical interpolation; t [...] or [..., 1] in [0, 1]."""
+    if t.dim() == q0.dim() - 1:
+        t = t.unsqueeze(-1)
+    cos_half = (q0 * q1).sum(-1, keepdim=True)
+    q1 = torch.where(cos_half < 0, -q1, q1)
+    cos_half = cos_half.abs()
+    half = torch.acos(cos_half.clamp(max=1.0))
+    sin_half = torch.sqrt((1.0 - cos_half * cos_half).clamp_min(0.0))
+    safe = sin_half.clamp_min(1e-12)
+    ra = torch.sin((1.0 - t) * half) / safe
+    rb = torch.sin(t * half) / safe
+    out = ra * q0 + rb * q1
+    # Near-parallel quaternions: the ratio is ill-conditioned, a normalised lerp is exact enough.
+    near = sin_half < 1e-3
+    lerp = quat_normalize((1.0 - t) * q0 + t * q1)
+    out = torch.where(near, lerp, out)
+    return torch.where(cos_half >= 1.0, q0, out)
+
+
+def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    x, y, z, w = quat_normalize(q).unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(*q.shape[:-1], 3, 3)
+
+
+def wrap_angle(a: torch.Tensor) -> torch.Tensor:
+    return torch.remainder(a + math.pi, 2 * math.pi) - math.pi
