@@ -132,9 +132,9 @@ class KinCharModel:
 
     def dof_joint_ids(self) -> np.ndarray:
         """For each DoF, the index (0..J-2) of the non-root joint that owns it."""
-        return np.concatenate(
-            [np.full(j.dof_dim, i, dtype=np.int64) for i, j in enumerate(self.joints[1:])]
-        ).astype(np.int64)
+        return np.concatenate([np.full(j.dof_dim, i, dtype=np.int64) for i, j in enumerate(self.joints[1:])]).astype(
+            np.int64
+        )
 
     def to(self, device: torch.device | str) -> KinCharModel:
         self.device = torch.device(device)

@@ -97,9 +97,7 @@ def _body_joint(m: mujoco.MjModel, b: int, body_idx: int, dof_idx: int, source: 
     if types == [_HINGE] * 3:
         axes = np.array([m.jnt_axis[j] / np.linalg.norm(m.jnt_axis[j]) for j in jids])
         if not np.allclose(axes, np.eye(3), atol=1e-6):
-            raise MimicKitError(
-                f"{source}: body '{body_name}' has three hinges whose axes are not x, y, z in order"
-            )
+            raise MimicKitError(f"{source}: body '{body_name}' has three hinges whose axes are not x, y, z in order")
         first = m.joint(jids[0]).name
         name = first[: first.rfind("_")] if "_" in first else first
         joint = Joint(name, JointType.SPHERICAL, body_idx, dof_idx, mjcf_joints=[m.joint(j).name for j in jids])

@@ -121,4 +121,3 @@ def _as_number(v: Any, source: str, key: str) -> float:
 
 def _plain_number(v: float) -> int | float:
     return int(v) if float(v).is_integer() else float(v)
-

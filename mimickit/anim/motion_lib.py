@@ -86,7 +86,7 @@ class MotionLib:
     # ------------------------------------------------------------------ loading
     def _load(self, motions: list[Motion], weights: list[float]) -> None:
         frame_size = 6 + self.char_model.get_dof_size()
-        for m, f in zip(motions, self.motion_files):
+        for m, f in zip(motions, self.motion_files, strict=True):
             if m.frame_dim != frame_size:
                 raise MimicKitError(
                     f"{f}: frames have {m.frame_dim} columns but the character "

@@ -28,7 +28,11 @@ def test_project_humanoid_layout():
     types = [j.type for j in c.joints[1:]]
     assert types.count(JointType.SPHERICAL) == 8 and types.count(JointType.HINGE) == 4
     assert types.count(JointType.FIXED) == 2
-    assert [c.get_joint_dof_idx(c.get_body_id(b)) for b in ("right_lower_arm", "left_upper_arm", "left_foot")] == [9, 10, 25]
+    assert [c.get_joint_dof_idx(c.get_body_id(b)) for b in ("right_lower_arm", "left_upper_arm", "left_foot")] == [
+        9,
+        10,
+        25,
+    ]
     assert c.get_total_mass() == pytest.approx(50.05, rel=0.02)
     low, high = c.dof_limits()
     assert low[9] == pytest.approx(0.0) and high[9] == pytest.approx(2.7925)

@@ -17,9 +17,13 @@ def test_quat_mul_composes_rotations_about_z():
 
 def test_quat_rotate_hand_computed():
     rz90 = q(0, 0, math.sin(math.pi / 4), math.cos(math.pi / 4))
-    torch.testing.assert_close(tu.quat_rotate(rz90, torch.tensor([1.0, 0, 0])), torch.tensor([0.0, 1, 0]), atol=1e-6, rtol=0)
+    torch.testing.assert_close(
+        tu.quat_rotate(rz90, torch.tensor([1.0, 0, 0])), torch.tensor([0.0, 1, 0]), atol=1e-6, rtol=0
+    )
     rx90 = q(math.sin(math.pi / 4), 0, 0, math.cos(math.pi / 4))
-    torch.testing.assert_close(tu.quat_rotate(rx90, torch.tensor([0.0, 1, 0])), torch.tensor([0.0, 0, 1]), atol=1e-6, rtol=0)
+    torch.testing.assert_close(
+        tu.quat_rotate(rx90, torch.tensor([0.0, 1, 0])), torch.tensor([0.0, 0, 1]), atol=1e-6, rtol=0
+    )
 
 
 def test_wxyz_conversion():
@@ -87,4 +91,6 @@ def test_matrix_matches_rotate():
     g = torch.Generator().manual_seed(1)
     qs = tu.quat_normalize(torch.randn(50, 4, generator=g))
     v = torch.randn(50, 3, generator=g)
-    torch.testing.assert_close((tu.quat_to_matrix(qs) @ v.unsqueeze(-1)).squeeze(-1), tu.quat_rotate(qs, v), atol=1e-5, rtol=0)
+    torch.testing.assert_close(
+        (tu.quat_to_matrix(qs) @ v.unsqueeze(-1)).squeeze(-1), tu.quat_rotate(qs, v), atol=1e-5, rtol=0
+    )
