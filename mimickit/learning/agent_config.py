@@ -1,0 +1,127 @@
+"""Typed configs of the agents (spec §6.1, §6.5, §6.6, §6.12) and loading an agent yaml.
+
+The reference's agent yamls are the format. An unknown key, a wrong type or a missing required key is
+one `MimicKitError` naming the file and the key; numbers written like `1e-4` are numbers. Batch sizes
+(`actor_batch_size`, `critic_batch_size`) are in units of `num_envs`, as in the reference.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+
+from mimickit.util.config import ConfigModel, load_yaml, parse_config
+from mimickit.util.errors import MimicKitError
+
+NetName = Literal[
+    "fc_2layers_128units",
+    "fc_2layers_256units",
+    "fc_2layers_512units",
+    "fc_2layers_1024units",
+    "fc_3layers_1024units",
+]
+StdType = Literal["FIXED", "CONSTANT", "VARIABLE"]
+
+
+class OptimizerConfig(ConfigModel):
+    type: Literal["SGD", "Adam"]
+    """SGD (momentum 0.9) or Adam (implemented as AdamW, as the reference)."""
+    learning_rate: float = Field(gt=0)
+    weight_decay: float = Field(default=0.0, ge=0)
+    grad_clip: float = Field(default=0.0, ge=0)
+    """Global-norm clip; 0 disables it (no shipped yaml sets it)."""
+    use_amp: bool = False
+    """Accepted for compatibility with newer reference yamls; mixed precision is not implemented."""
+    amp_type: Literal["fp16", "bf16"] = "fp16"
+
+
+class ActorCriticModelConfig(ConfigModel):
+    actor_net: NetName
+    actor_init_output_scale: float = Field(default=0.01, gt=0)
+    """Mean head weights start U(-s, s), so the initial policy mean is ≈ 0 (normalised units)."""
+    actor_std_type: StdType = "FIXED"
+    action_std: float = Field(gt=0)
+    """Action noise σ in normalised action units (×half-range of the action box)."""
+    critic_net: NetName
+
+
+class BaseAgentConfig(ConfigModel):
+    agent_name: str
+    discount: float = Field(ge=0, lt=1)
+    iters_per_output: int = Field(ge=1)
+    """Every this many iterations: test episodes, a log.txt row and model.pt."""
+    test_episodes: int = Field(ge=0)
+    steps_per_iter: int = Field(ge=1)
+    """Rollout length per iteration (rows of the experience buffer)."""
+    normalizer_samples: float = math.inf
+    """The observation normaliser is updated while the global sample count is below this."""
+    use_mixed_precision: bool = False
+    """Accepted for compatibility with older reference yamls; ignored."""
+
+
+class DummyAgentConfig(BaseAgentConfig):
+    agent_name: str = "Dummy"
+    discount: float = 0.99
+    iters_per_output: int = 1
+    test_episodes: int = 0
+    steps_per_iter: int = 32
+
+
+class ActorCriticAgentConfig(BaseAgentConfig):
+    """What PPO and AWR share: model, optimisers, rollout, critic, exploration and actor penalties."""
+
+    model: ActorCriticModelConfig
+    actor_optimizer: OptimizerConfig
+    critic_optimizer: OptimizerConfig
+    actor_epochs: int = Field(ge=0)
+    actor_batch_size: float = Field(gt=0)
+    """Samples per actor minibatch = ceil(actor_batch_size × num_envs)."""
+    critic_epochs: int = Field(ge=0)
+    critic_batch_size: float = Field(gt=0)
+    """Samples per critic minibatch = ceil(critic_batch_size × num_envs)."""
+    td_lambda: float = Field(ge=0, le=1)
+    action_bound_weight: float
+    action_entropy_weight: float
+    action_reg_weight: float
+    critic_eval_batch_size: int = Field(default=0, ge=0)
+    """Samples per critic forward pass when building targets; 0 = all at once."""
+    exp_anneal_samples: float = math.inf
+    exp_prob_beg: float = Field(default=1.0, ge=0, le=1)
+    exp_prob_end: float = Field(default=1.0, ge=0, le=1)
+
+
+class PPOAgentConfig(ActorCriticAgentConfig):
+    agent_name: Literal["PPO"] = "PPO"
+    ppo_clip_ratio: float = Field(gt=0)
+    norm_adv_clip: float = Field(gt=0)
+
+
+class AWRAgentConfig(ActorCriticAgentConfig):
+    agent_name: Literal["AWR"] = "AWR"
+    awr_temp: float = Field(default=1.0, gt=0)
+    a_weight_clip: float = Field(default=20.0, gt=0)
+
+
+AGENT_CONFIGS: dict[str, type[BaseAgentConfig]] = {
+    "PPO": PPOAgentConfig,
+    "AWR": AWRAgentConfig,
+    "Dummy": DummyAgentConfig,
+}
+# Agents of the reference that are not ported yet; named in the error message.
+_NOT_YET = ("AMP", "ASE", "ADD", "LCP", "SMP")
+
+
+def load_agent_config(path: str | Path) -> BaseAgentConfig:
+    """Read an agent yaml and validate it against the config class of its `agent_name`."""
+    data = load_yaml(path)
+    name = data.get("agent_name")
+    if name is None:
+        raise MimicKitError(f"{path}: missing required key 'agent_name'")
+    if name not in AGENT_CONFIGS:
+        supported = ", ".join(AGENT_CONFIGS)
+        hint = " (not ported yet)" if name in _NOT_YET else ""
+        raise MimicKitError(f"{path}: key 'agent_name': unsupported agent '{name}'{hint}; supported: {supported}")
+    return parse_config(AGENT_CONFIGS[name], data, path)

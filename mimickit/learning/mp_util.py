@@ -1,0 +1,147 @@
+"""Multi-process helpers over `torch.distributed` (spec §1.4).
+
+One OS process per device; `init(rank, num_procs, device, port)` joins the process group (gloo on
+CPU, NCCL on CUDA). With a single process no group is created and every collective is the identity,
+so agents call these helpers unconditionally.
+
+Collectives accept tensors or python scalars; scalars travel as a tensor on the process device and
+come back as the same python type (an int stays an int).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import TypeVar
+
+import torch
+import torch.distributed as dist
+
+_num_procs = 1
+_rank = 0
+_device = torch.device("cpu")
+
+Scalar = TypeVar("Scalar", int, float, torch.Tensor)
+
+
+def init(rank: int, num_procs: int, device: torch.device | str, master_port: int) -> None:
+    """Join the process group of `num_procs` processes as `rank` (no group when `num_procs` is 1)."""
+    global _num_procs, _rank, _device
+    _num_procs, _rank, _device = num_procs, rank, torch.device(device)
+    if num_procs <= 1:
+        return
+    os.environ["MASTER_ADDR"] = "localhost"
+    os.environ["MASTER_PORT"] = str(master_port)
+    backend = "nccl" if _device.type == "cuda" and sys.platform != "win32" else "gloo"
+    if _device.type == "cuda":
+        torch.cuda.set_device(_device)
+    dist.init_process_group(backend, rank=rank, world_size=num_procs)
+
+
+def shutdown() -> None:
+    """Leave the process group (no-op for a single process)."""
+    global _num_procs, _rank
+    if _num_procs > 1 and dist.is_initialized():
+        dist.destroy_process_group()
+    _num_procs, _rank = 1, 0
+
+
+def get_num_procs() -> int:
+    return _num_procs
+
+
+def get_proc_rank() -> int:
+    return _rank
+
+
+def get_device() -> torch.device:
+    return _device
+
+
+def is_root_proc() -> bool:
+    return _rank == 0
+
+
+def enable_mp() -> bool:
+    return _num_procs > 1
+
+
+def broadcast(x: torch.Tensor) -> torch.Tensor:
+    """A copy of rank 0's `x` on every process."""
+    out = x.detach().clone()
+    if enable_mp():
+        dist.broadcast(out, src=0)
+    return out
+
+
+def reduce_sum(x: Scalar) -> Scalar:
+    return _reduce(x, dist.ReduceOp.SUM)
+
+
+def reduce_prod(x: Scalar) -> Scalar:
+    return _reduce(x, dist.ReduceOp.PRODUCT)
+
+
+def reduce_min(x: Scalar) -> Scalar:
+    return _reduce(x, dist.ReduceOp.MIN)
+
+
+def reduce_max(x: Scalar) -> Scalar:
+    return _reduce(x, dist.ReduceOp.MAX)
+
+
+def reduce_mean(x: Scalar) -> Scalar:
+    total = reduce_sum(x)
+    if isinstance(total, int):
+        return total // _num_procs if _num_procs > 1 else total
+    return total / _num_procs
+
+
+def reduce_inplace_sum(x: torch.Tensor) -> None:
+    if enable_mp():
+        dist.all_reduce(x, op=dist.ReduceOp.SUM)
+
+
+def reduce_inplace_mean(x: torch.Tensor) -> None:
+    if enable_mp():
+        dist.all_reduce(x, op=dist.ReduceOp.SUM)
+        x /= _num_procs
+
+
+def reduce_inplace_min(x: torch.Tensor) -> None:
+    if enable_mp():
+        dist.all_reduce(x, op=dist.ReduceOp.MIN)
+
+
+def reduce_inplace_max(x: torch.Tensor) -> None:
+    if enable_mp():
+        dist.all_reduce(x, op=dist.ReduceOp.MAX)
+
+
+def calc_mean_std(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and std of `x` [n] over all processes.
+
+    As the reference: the average of per-process means and the square root of the average of
+    per-process (unbiased) variances, not the exact pooled variance (spec §1.4 [RE minor]).
+    Returns two 0-d tensors.
+    """
+    mean = x.mean()
+    var = x.var() if x.numel() > 1 else torch.zeros_like(mean)
+    if enable_mp():
+        stats = torch.stack([mean, var])
+        reduce_inplace_mean(stats)
+        mean, var = stats[0], stats[1]
+    return mean, var.sqrt()
+
+
+def _reduce(x: Scalar, op: dist.ReduceOp) -> Scalar:
+    if not enable_mp():
+        return x.clone() if isinstance(x, torch.Tensor) else x
+    if isinstance(x, torch.Tensor):
+        out = x.detach().clone()
+        dist.all_reduce(out, op=op)
+        return out
+    dtype = torch.int64 if isinstance(x, (int, bool)) else torch.float64
+    t = torch.tensor([x], dtype=dtype, device=_device)
+    dist.all_reduce(t, op=op)
+    return type(x)(t.item()) if not isinstance(x, bool) else int(t.item())
