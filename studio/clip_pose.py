@@ -1,0 +1,98 @@
+"""A clip posed on a character, once for all frames: what the player draws and reports.
+
+Forward kinematics of the whole clip is one batched call (milliseconds for thousands of frames), so
+playback is table look-ups. Shapes: T frames, J bodies, F feet, D DoFs.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mimickit.anim.char_geometry import body_surface_points, lowest_point_z
+from mimickit.anim.kin_char_model import JointType, KinCharModel
+from mimickit.anim.mjcf_char_model import load_char_model
+from mimickit.anim.motion import Motion, load_motion
+from mimickit.tools.motion_report import check_frame_dim
+from mimickit.util import torch_util as tu
+
+CONTACT_HEIGHT = 0.02  # a foot whose lowest point is this close to the ground counts as in contact
+_FOOT = re.compile(r"foot|toe|ankle", re.IGNORECASE)
+
+
+@dataclass
+class ClipPose:
+    path: Path
+    char_path: Path
+    motion: Motion
+    char: KinCharModel
+    body_pos: np.ndarray  # [T, J, 3] world positions
+    body_rot: np.ndarray  # [T, J, 4] world rotations, xyzw
+    body_xmat: np.ndarray  # [T, J, 3, 3] the same as matrices (what the viewer takes)
+    feet: list[str]  # names of the F foot bodies
+    foot_low_z: np.ndarray  # [T, F] lowest point of each foot's collision shapes
+
+    @property
+    def num_frames(self) -> int:
+        return self.motion.num_frames
+
+    @property
+    def fps(self) -> float:
+        return self.motion.fps
+
+    @property
+    def root_pos(self) -> np.ndarray:
+        """[T, 3]"""
+        return self.body_pos[:, 0]
+
+    def contacts(self, frame: int) -> np.ndarray:
+        """[F] bool: which feet touch the ground at `frame`."""
+        return self.foot_low_z[frame] <= CONTACT_HEIGHT
+
+    def joint_values(self, frame: int) -> list[tuple[str, list[float]]]:
+        """(joint name, its DoF values in rad) per non-root joint with DoFs, at `frame`."""
+        dofs = self.motion.frames[frame, 6:]
+        out = []
+        for joint in self.char.joints[1:]:
+            if joint.type in (JointType.HINGE, JointType.SPHERICAL):
+                out.append((joint.name, dofs[joint.dof_idx : joint.dof_idx + joint.dof_dim].tolist()))
+        return out
+
+
+def pose_clip(clip_path: Path, char_path: Path) -> ClipPose:
+    """Load a clip and a character and pose every frame; MimicKitError when they do not fit."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # NaN columns read as 0 are reported by the library panel
+        motion = load_motion(clip_path)
+        char = load_char_model(char_path)
+    check_frame_dim(motion, char, clip_path)
+    frames = torch.from_numpy(motion.frames)
+    root_rot = tu.exp_map_to_quat(frames[:, 3:6])
+    joint_rot = char.dof_to_rot(frames[:, 6:])
+    with torch.no_grad():
+        body_pos, body_rot = char.forward_kinematics(frames[:, :3], root_rot, joint_rot)
+    feet = foot_bodies(char)
+    low = np.zeros((motion.num_frames, len(feet)), dtype=np.float32)
+    for i, name in enumerate(feet):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # it re-reads the MJCF: same warnings as above
+            ids, pts = body_surface_points(char, [name])
+        if len(ids):
+            low[:, i] = lowest_point_z(char, ids, pts, body_pos, body_rot).numpy()
+        else:  # a foot without collision shapes: its origin stands in
+            low[:, i] = body_pos[:, char.get_body_id(name), 2].numpy()
+    xmat = tu.quat_to_matrix(body_rot).numpy()
+    return ClipPose(clip_path, char_path, motion, char, body_pos.numpy(), body_rot.numpy(), xmat, feet, low)
+
+
+def foot_bodies(char: KinCharModel) -> list[str]:
+    """Bodies named like feet (foot, toe, ankle), keeping the last of each chain (toe over ankle)."""
+    names = char.get_body_names()
+    matched = [i for i, n in enumerate(names) if _FOOT.search(n)]
+    has_matched_child = {char.get_parent_id(i) for i in matched}
+    return [names[i] for i in matched if i not in has_matched_child]

@@ -1,0 +1,188 @@
+"""The clip player: which frame of which clip is shown, advanced by a thread at clip fps × speed.
+
+The state lives here on the server (one scene shared by every browser), so REST calls, the viser
+GUI and the keyboard all drive the same player, and tests can read it back through the API.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from studio.clip_pose import ClipPose
+from studio.scene import StudioScene
+
+MAX_UPDATE_HZ = 60.0  # a 120 fps clip at speed 2 still sends at most this many scene updates a second
+MIN_SPEED, MAX_SPEED = 0.05, 8.0
+
+
+@dataclass
+class PlayerState:
+    frame: int = 0
+    time: float = 0.0
+    playing: bool = False
+    speed: float = 1.0
+    loop: bool = True
+    follow: bool = True
+    updates: int = 0  # scene updates sent since start: the benchmark's frames-delivered counter
+
+
+class Player:
+    def __init__(self, scene: StudioScene) -> None:
+        self.scene = scene
+        self.pose: ClipPose | None = None
+        self.state = PlayerState()
+        self._lock = threading.RLock()
+        self._wake = threading.Event()
+        self._closed = threading.Event()
+        self._listeners: list[Callable[[Player], None]] = []
+        self._root = [0.0, 0.0, 0.0]
+        self._thread = threading.Thread(target=self._run, name="clip-player", daemon=True)
+        self._thread.start()
+
+    def add_listener(self, fn: Callable[[Player], None]) -> None:
+        """`fn(player)` after every drawn frame and every state change (the GUI follows with it)."""
+        self._listeners.append(fn)
+
+    # -- commands ---------------------------------------------------------------------------------
+
+    def load(self, pose: ClipPose, *, play: bool = False) -> None:
+        with self._lock:
+            self.pose = pose
+            self.scene.show_clip(pose)
+            self.state.playing = play
+            self._seek_frame(0)
+        self._wake.set()
+
+    def play(self) -> None:
+        with self._lock:
+            if self.pose is None:
+                return
+            if not self.state.loop and self.state.frame >= self.pose.num_frames - 1:
+                self._seek_frame(0)  # play at the end of a non-looping clip starts it over
+            self.state.playing = True
+        self._changed()
+        self._wake.set()
+
+    def pause(self) -> None:
+        with self._lock:
+            self.state.playing = False
+        self._changed()
+
+    def toggle(self) -> None:
+        self.pause() if self.state.playing else self.play()
+
+    def step(self, frames: int = 1) -> None:
+        """Pause and move `frames` (may be negative), wrapping when looping, else clamped."""
+        with self._lock:
+            if self.pose is None:
+                return
+            self.state.playing = False
+            self._seek_frame(self._wrap_or_clamp(self.state.frame + frames))
+
+    def seek(self, *, frame: int | None = None, time_s: float | None = None) -> None:
+        with self._lock:
+            if self.pose is None:
+                return
+            if frame is None:
+                frame = round((time_s or 0.0) * self.pose.fps)
+            self._seek_frame(max(0, min(int(frame), self.pose.num_frames - 1)))
+
+    def configure(self, *, speed: float | None = None, loop: bool | None = None, follow: bool | None = None) -> None:
+        with self._lock:
+            if speed is not None:
+                self.state.speed = min(max(float(speed), MIN_SPEED), MAX_SPEED)
+            if loop is not None:
+                self.state.loop = bool(loop)
+            if follow is not None:
+                self.state.follow = bool(follow)
+                if self.pose is not None:
+                    self._draw()
+        self._changed()
+
+    def snapshot(self) -> dict[str, Any]:
+        """The player's state as the API reports it."""
+        with self._lock:
+            s = self.state
+            pose = self.pose
+            return {
+                "clip": str(pose.path) if pose else None,
+                "char": str(pose.char_path) if pose else None,
+                "num_frames": pose.num_frames if pose else 0,
+                "fps": pose.fps if pose else None,
+                "duration": pose.motion.duration if pose else 0.0,
+                "frame": s.frame,
+                "time": s.time,
+                "playing": s.playing,
+                "speed": s.speed,
+                "loop": s.loop,
+                "follow": s.follow,
+                "updates": s.updates,
+                "root_pos": list(self._root),
+                "contacts": dict(zip(pose.feet, pose.contacts(s.frame).tolist(), strict=True)) if pose else {},
+            }
+
+    def close(self) -> None:
+        self._closed.set()
+        self._wake.set()
+        self._thread.join(timeout=2)
+
+    # -- internals --------------------------------------------------------------------------------
+
+    def _wrap_or_clamp(self, frame: int) -> int:
+        n = self.pose.num_frames
+        return frame % n if self.state.loop else max(0, min(frame, n - 1))
+
+    def _seek_frame(self, frame: int) -> None:
+        self.state.frame = frame
+        self.state.time = frame / self.pose.fps
+        self._draw()
+
+    def _draw(self) -> None:
+        pose = self.pose
+        self.scene.draw(pose, self.state.frame, self.state.follow)
+        self._root = pose.root_pos[self.state.frame].astype(float).tolist()
+        self.state.updates += 1
+        self._changed()
+
+    def _changed(self) -> None:
+        for fn in self._listeners:
+            fn(self)
+
+    def _run(self) -> None:
+        """Advance by wall-clock time while playing; draw only when the frame index changes."""
+        last = time.monotonic()
+        while not self._closed.is_set():
+            with self._lock:
+                playing, pose = self.state.playing, self.pose
+                period = 1.0 / min(pose.fps * self.state.speed, MAX_UPDATE_HZ) if pose else 0.1
+            if not playing or pose is None:
+                self._wake.wait(0.1)
+                self._wake.clear()
+                last = time.monotonic()
+                continue
+            time.sleep(max(0.0, last + period - time.monotonic()))
+            now = time.monotonic()
+            with self._lock:
+                if self.state.playing and self.pose is pose:
+                    self._advance((now - last) * self.state.speed)
+            last = now
+
+    def _advance(self, dt: float) -> None:
+        pose, s = self.pose, self.state
+        duration = pose.motion.duration
+        t = s.time + dt
+        if t > duration:
+            if s.loop and duration > 0:
+                t = math.fmod(t, duration)
+            else:
+                t, s.playing = duration, False
+        frame = min(round(t * pose.fps), pose.num_frames - 1)
+        s.time = t
+        if frame != s.frame or not s.playing:
+            s.frame = frame
+            self._draw()

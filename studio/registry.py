@@ -1,0 +1,154 @@
+"""The run registry: one SQLite table in `<runs-dir>/registry.sqlite` (stdlib sqlite3, WAL mode).
+
+The registry is the truth about runs across server restarts; the run manager is its only writer.
+Each call opens its own short connection, so any thread may use it and a killed server leaves
+nothing half-written (SQLite's journal takes care of that).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+
+class RunStatus(str, Enum):
+    QUEUED = "queued"
+    RUNNING = "running"
+    STOPPING = "stopping"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    STOPPED = "stopped"
+    INTERRUPTED = "interrupted"
+
+    @property
+    def finished(self) -> bool:
+        return self in FINISHED
+
+
+FINISHED = {RunStatus.SUCCEEDED, RunStatus.FAILED, RunStatus.STOPPED, RunStatus.INTERRUPTED}
+ACTIVE = {RunStatus.RUNNING, RunStatus.STOPPING}
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    name TEXT NOT NULL,
+    config TEXT NOT NULL,          -- JSON: arg_file and overrides, as the user asked
+    status TEXT NOT NULL,
+    pid INTEGER,
+    created_at REAL NOT NULL,
+    started_at REAL,
+    ended_at REAL,
+    out_dir TEXT NOT NULL,
+    exit_code INTEGER,
+    command TEXT,                  -- JSON argv of the latest process, recorded for reproducibility
+    attempts INTEGER NOT NULL DEFAULT 0
+)
+"""
+
+
+@dataclass
+class Run:
+    id: int
+    name: str
+    config: dict[str, Any]
+    status: RunStatus
+    pid: int | None
+    created_at: float
+    started_at: float | None
+    ended_at: float | None
+    out_dir: str
+    exit_code: int | None
+    command: list[str] | None
+    attempts: int
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["status"] = self.status.value
+        return d
+
+
+class Registry:
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()  # one writer at a time inside this process
+        with self._connect() as db:
+            db.execute("PRAGMA journal_mode=WAL")
+            db.execute(_SCHEMA)
+
+    @contextmanager
+    def _connect(self) -> Iterator[sqlite3.Connection]:
+        db = sqlite3.connect(self.path, timeout=10.0)
+        db.row_factory = sqlite3.Row
+        try:
+            with db:  # commits on success, rolls back on error
+                yield db
+        finally:
+            db.close()
+
+    def create(self, name: str, config: dict[str, Any], out_dir_for: Callable[[int], str]) -> Run:
+        """Insert a queued run; its out_dir comes from its new id, in the same transaction, so no
+        reader (the run manager's thread) ever sees a queued run without its folder."""
+        with self._lock, self._connect() as db:
+            cur = db.execute(
+                "INSERT INTO runs (name, config, status, created_at, out_dir) VALUES (?, ?, ?, ?, '')",
+                (name, json.dumps(config), RunStatus.QUEUED.value, time.time()),
+            )
+            run_id = int(cur.lastrowid)
+            db.execute("UPDATE runs SET out_dir = ? WHERE id = ?", (out_dir_for(run_id), run_id))
+        return self.get(run_id)
+
+    def update(self, run_id: int, **fields: Any) -> Run:
+        """Set columns of one run; `config`/`command` are stored as JSON, `status` as its value."""
+        if not fields:
+            return self.get(run_id)
+        cols, vals = [], []
+        for key, value in fields.items():
+            if key in ("config", "command") and value is not None:
+                value = json.dumps(value)
+            elif isinstance(value, RunStatus):
+                value = value.value
+            cols.append(f"{key} = ?")
+            vals.append(value)
+        with self._lock, self._connect() as db:
+            db.execute(f"UPDATE runs SET {', '.join(cols)} WHERE id = ?", (*vals, run_id))
+        return self.get(run_id)
+
+    def get(self, run_id: int) -> Run:
+        run = self.find(run_id)
+        if run is None:
+            raise KeyError(run_id)
+        return run
+
+    def find(self, run_id: int) -> Run | None:
+        with self._connect() as db:
+            row = db.execute("SELECT * FROM runs WHERE id = ?", (run_id,)).fetchone()
+        return _row_to_run(row) if row else None
+
+    def list(self, status: RunStatus | None = None) -> list[Run]:
+        with self._connect() as db:
+            if status is None:
+                rows = db.execute("SELECT * FROM runs ORDER BY id").fetchall()
+            else:
+                rows = db.execute("SELECT * FROM runs WHERE status = ? ORDER BY id", (status.value,)).fetchall()
+        return [_row_to_run(r) for r in rows]
+
+    def delete(self, run_id: int) -> None:
+        with self._lock, self._connect() as db:
+            db.execute("DELETE FROM runs WHERE id = ?", (run_id,))
+
+
+def _row_to_run(row: sqlite3.Row) -> Run:
+    d = dict(row)
+    d["config"] = json.loads(d["config"])
+    d["command"] = json.loads(d["command"]) if d["command"] else None
+    d["status"] = RunStatus(d["status"])
+    return Run(**d)

@@ -1,0 +1,75 @@
+"""What one `mimickit-studio serve` process is configured with."""
+
+from __future__ import annotations
+
+import ipaddress
+import shlex
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
+
+DEFAULT_TRAINER = [sys.executable, "-m", "mimickit.cli", "train"]
+
+
+@dataclass
+class Settings:
+    """Server settings; paths are resolved absolute by `resolved()`."""
+
+    host: str = "127.0.0.1"
+    port: int = 8000
+    viser_port: int = 0  # 0: pick a free port
+    data_dir: Path | None = None  # a user's MimicKit-style data folder (motions/, assets/, ...)
+    runs_dir: Path = field(default_factory=lambda: PROJECT_ROOT / "output" / "studio_runs")
+    token: str | None = None
+    max_concurrent_runs: int = 1
+    trainer: list[str] = field(default_factory=lambda: list(DEFAULT_TRAINER))
+    """The program a run starts, before its `--arg_file ...` arguments (`mimickit train` by default)."""
+    upload_limit_bytes: int = 64 * 1024 * 1024
+    stop_timeout_s: float = 60.0
+    """How long a stopped run may take to write its checkpoint before it is killed."""
+    start_viser: bool = True
+
+    def resolved(self) -> Settings:
+        self.runs_dir = Path(self.runs_dir).expanduser().resolve()
+        if self.data_dir is not None:
+            self.data_dir = Path(self.data_dir).expanduser().resolve()
+        return self
+
+    @property
+    def data_dirs(self) -> list[Path]:
+        """The user's data folder first (it shadows the project's, as in `resolve_data_path`)."""
+        dirs = [self.data_dir] if self.data_dir else []
+        return [*dirs, PROJECT_DATA_DIR]
+
+    @property
+    def arg_dirs(self) -> list[Path]:
+        """Folders with MimicKit arg files: the project's `args/`, each data folder's, and the runs folder's."""
+        return [PROJECT_ROOT / "args", *(d / "args" for d in self.data_dirs), self.runs_dir / "args"]
+
+    @property
+    def uploads_dir(self) -> Path:
+        return self.runs_dir / "uploads"
+
+    @property
+    def readable_roots(self) -> list[Path]:
+        """Every folder a request may name a file in."""
+        return [*self.data_dirs, PROJECT_ROOT / "args", self.runs_dir]
+
+    @property
+    def needs_token(self) -> bool:
+        return not is_loopback(self.host)
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def parse_trainer(text: str) -> list[str]:
+    return shlex.split(text)

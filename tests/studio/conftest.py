@@ -1,0 +1,104 @@
+"""The studio as a user runs it: `mimickit-studio serve` in a subprocess on free ports, talked to over
+HTTP. Runs use `fake_trainer.py`, which keeps the `mimickit train` contract in a fraction of a second.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.conftest import test_data_dir
+
+FAKE_TRAINER = Path(__file__).with_name("fake_trainer.py")
+TRAINER = shlex.join([sys.executable, str(FAKE_TRAINER)])
+START_TIMEOUT_S = 60.0
+
+
+class StudioProcess:
+    """One `mimickit-studio serve` subprocess; `url` is the one line it prints."""
+
+    def __init__(self, runs_dir: Path, data_dir: Path | None = None, *extra: str) -> None:
+        self.runs_dir = runs_dir
+        argv = [sys.executable, "-m", "studio.cli", "serve", "--port", "0", "--viser-port", "0"]
+        argv += ["--runs-dir", str(runs_dir), "--trainer", TRAINER, *extra]
+        if data_dir is not None:
+            argv += ["--data-dir", str(data_dir)]
+        self.stderr_path = runs_dir / "server.stderr.log"
+        with open(self.stderr_path, "a") as err:  # a file, not a pipe nobody reads that could fill up
+            self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err, text=True)
+        self.url = self._read_url()
+        self.client = httpx.Client(base_url=self.url, timeout=30.0)
+
+    def _read_url(self) -> str:
+        box: list[str] = []
+        reader = threading.Thread(target=lambda: box.append(self.proc.stdout.readline()), daemon=True)
+        reader.start()
+        reader.join(START_TIMEOUT_S)
+        line = box[0] if box else ""
+        if "http://" not in line:
+            self.proc.kill()
+            raise RuntimeError(f"studio did not start: {line!r} {self.stderr_path.read_text()[-2000:]}")
+        return line.split()[-1]
+
+    def get(self, path: str, **kw: object) -> httpx.Response:
+        return self.client.get(path, **kw)
+
+    def post(self, path: str, json: object = None, **kw: object) -> httpx.Response:
+        return self.client.post(path, json=json, **kw)
+
+    def stop(self) -> None:
+        self.client.close()
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def kill9(self) -> None:
+        self.client.close()
+        os.kill(self.proc.pid, signal.SIGKILL)
+        self.proc.wait()
+
+
+def wait_for(fn: Callable[[], object], timeout: float = 20.0, what: str = "condition") -> object:
+    """Poll `fn` until it returns something truthy."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = fn()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def write_arg_file(runs_dir: Path, name: str, rows: int = 10, period: float = 0.2, exit_code: int = 0) -> Path:
+    """An arg file in `<runs-dir>/args/`, where the studio lists arg files saved beside the runs."""
+    path = runs_dir / "args" / f"{name}.txt"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(
+        f"# fake trainer settings\n--fake_rows {rows}\n--fake_period {period}\n--fake_exit_code {exit_code}\n"
+    )
+    return path
+
+
+@pytest.fixture(scope="session")
+def studio(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
+    """One server for the read-mostly tests, on MimicKit's reference data when it is there."""
+    runs_dir = tmp_path_factory.mktemp("studio_runs")
+    for name, rows in (("short", 8), ("long", 400)):
+        write_arg_file(runs_dir, name, rows=rows)
+    server = StudioProcess(runs_dir, test_data_dir())
+    yield server
+    server.stop()

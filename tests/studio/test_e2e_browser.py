@@ -1,0 +1,128 @@
+"""End to end in real Chromium (Playwright, the apt browser): open the dashboard, load humanoid_walk,
+play, pause, step, scrub, and launch and stop a run from the page. The server's scene state is the
+judge of what the clicks did; screenshots of the embedded viser canvas check that the character is
+drawn (not a blank canvas) and moves. Headless Chromium renders WebGL in software (~1 fps), hence
+the waits before each screenshot.
+
+Set STUDIO_UPDATE_SCREENSHOTS=1 to write the dashboard screenshot to docs/studio_dashboard.png.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mimickit.util.paths import PROJECT_ROOT
+from tests.studio.conftest import StudioProcess, wait_for
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
+Image = pytest.importorskip("PIL.Image")
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)")
+RENDER_WAIT_S = 3.0  # software WebGL draws about one frame a second
+
+
+@pytest.fixture(scope="module")
+def page(studio: StudioProcess):
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
+        page = browser.new_page(viewport={"width": 1500, "height": 860})
+        page.on("dialog", lambda d: d.accept())  # "Delete run …?" confirmations
+        page.goto(studio.url)
+        yield page
+        browser.close()
+
+
+def state(studio: StudioProcess) -> dict:
+    return studio.get("/api/scene/state").json()
+
+
+def scene_pixels(page) -> np.ndarray:
+    png = page.locator("#scene").screenshot()
+    return np.asarray(Image.open(io.BytesIO(png)).convert("L"), dtype=np.float32)
+
+
+def test_clip_player_in_the_browser(page, studio: StudioProcess, test_data, tmp_path: Path) -> None:
+    canvas = page.frame_locator("#scene").locator("canvas").first
+    canvas.wait_for(timeout=30_000)
+    page.fill("#filter", "humanoid_walk")
+    page.get_by_text("humanoid_walk.pkl", exact=True).click()
+    s = wait_for(lambda: (st := state(studio))["clip"] and st["clip"].endswith("humanoid_walk.pkl") and st)
+    assert s["char"].endswith("humanoid/humanoid.xml")
+    wait_for(lambda: state(studio)["playing"] and state(studio)["frame"] > 0, what="playback after loading")
+
+    page.click("#play")  # pause
+    wait_for(lambda: not state(studio)["playing"], what="pause")
+    frame = state(studio)["frame"]
+    page.click("#step")
+    wait_for(lambda: state(studio)["frame"] == (frame + 1) % 125, what="step button")
+    page.locator("body").press("Space")  # MimicKit's key: step one frame
+    wait_for(lambda: state(studio)["frame"] == (frame + 2) % 125, what="Space key")
+    page.locator("body").press("Enter")  # MimicKit's key: play/pause
+    wait_for(lambda: state(studio)["playing"], what="Enter key plays")
+    page.locator("body").press("Enter")
+    wait_for(lambda: not state(studio)["playing"], what="Enter key pauses")
+
+    page.locator("#timeline").fill("20")  # scrub
+    wait_for(lambda: state(studio)["frame"] == 20, what="scrub to frame 20")
+    _close_viser_toast(page)
+    time.sleep(RENDER_WAIT_S)
+    first = scene_pixels(page)
+    page.locator("#timeline").fill("80")
+    wait_for(lambda: state(studio)["frame"] == 80, what="scrub to frame 80")
+    assert state(studio)["root_pos"] != s["root_pos"]
+    time.sleep(RENDER_WAIT_S)
+    second = scene_pixels(page)
+
+    assert first.std() > 10, "the scene canvas looks blank"
+    changed = np.abs(first - second) > 12
+    assert changed.mean() > 0.002, "the picture did not change between frames 20 and 80"
+
+
+def test_launch_and_stop_a_run_from_the_page(page, studio: StudioProcess, tmp_path: Path) -> None:
+    page.reload()
+    page.wait_for_selector("#arg-file option[value$='long.txt']", state="attached")
+    page.select_option("#arg-file", value=str(studio.runs_dir / "args" / "long.txt"))
+    page.fill("#run-name", "from the page")
+    page.click("#launch-button")
+    run = wait_for(
+        lambda: next((r for r in studio.get("/api/runs").json() if r["name"] == "from the page"), None),
+        what="the launched run",
+    )
+    wait_for(lambda: studio.get(f"/api/runs/{run['id']}").json()["status"] == "running", what="running")
+    item = page.locator(f"[data-run-id='{run['id']}']")
+    item.locator(".status.running").wait_for(timeout=10_000)
+    # Live curves from the metrics stream: both returns, each reward term, the losses.
+    page.wait_for_selector("#curves canvas[data-group=returns][data-series='2']", timeout=15_000)
+    page.wait_for_selector("#curves canvas[data-group=rewards][data-series='2']")
+    page.wait_for_selector("#curves canvas[data-group=losses][data-series='2']")
+    if state(studio)["clip"]:
+        studio.post("/api/scene/play")  # a moving character in the picture
+    _close_viser_toast(page)
+    time.sleep(RENDER_WAIT_S)  # software WebGL repaints slowly: the closed notice must be painted away
+    shot = PROJECT_ROOT / "docs" / "studio_dashboard.png"
+    if os.environ.get("STUDIO_UPDATE_SCREENSHOTS") != "1":
+        shot = tmp_path / "studio_dashboard.png"
+    page.screenshot(path=str(shot))
+    studio.post("/api/scene/pause")
+    item.locator("button[data-action=stop]").click()
+    wait_for(lambda: studio.get(f"/api/runs/{run['id']}").json()["status"] == "stopped", what="stopped")
+    item.locator(".status.stopped").wait_for(timeout=10_000)
+    page.locator(f"[data-run-id='{run['id']}'] button[data-action=delete]").click()
+    wait_for(lambda: studio.get(f"/api/runs/{run['id']}").status_code == 404, what="deleted after confirm")
+
+
+def _close_viser_toast(page) -> None:
+    """Hide viser's "Software WebGL rendering detected" notice: it covers part of the scene and says
+    nothing about the studio (a style rule, since the notice may appear after any click closed it)."""
+    scene_url = page.locator("#scene").get_attribute("src")
+    for frame in page.frames:
+        if scene_url and frame.url.startswith(scene_url):
+            frame.add_style_tag(content="[class*=Notification-root] { display: none !important; }")

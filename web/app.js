@@ -1,0 +1,261 @@
+// The dashboard: library, clip player controls (driving the server's player), runs and live curves.
+// Everything goes through the REST API; the 3D scene is viser's page in the iframe.
+"use strict";
+
+// ---------------------------------------------------------------- API access (token when required)
+const params = new URLSearchParams(location.search);
+const TOKEN = params.get("token") || sessionStorage.getItem("studio-token") || "";
+if (TOKEN) sessionStorage.setItem("studio-token", TOKEN);
+
+async function api(method, path, body, raw = false) {
+  const headers = TOKEN ? { "X-Studio-Token": TOKEN } : {};
+  const init = { method, headers };
+  if (body instanceof Blob) { init.body = body; headers["Content-Type"] = "application/octet-stream"; }
+  else if (body !== undefined) { init.body = JSON.stringify(body); headers["Content-Type"] = "application/json"; }
+  const r = await fetch(path, init);
+  if (raw) return r;
+  const data = r.status === 204 ? null : await r.json();
+  if (!r.ok) throw new Error((data && data.detail && (typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail))) || r.statusText);
+  return data;
+}
+const withToken = (url) => (TOKEN ? `${url}${url.includes("?") ? "&" : "?"}token=${encodeURIComponent(TOKEN)}` : url);
+const $ = (id) => document.getElementById(id);
+const el = (tag, attrs = {}, ...children) => {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) (k.startsWith("on") ? e.addEventListener(k.slice(2), v) : e.setAttribute(k, v));
+  for (const c of children) e.append(c);
+  return e;
+};
+
+// ---------------------------------------------------------------- start-up
+async function init() {
+  const health = await api("GET", "/api/health");
+  $("health").textContent = `runs: ${health.runs_dir} · data: ${health.data_dirs.join(", ")}`;
+  if (health.viser_port) $("scene").src = `${location.protocol}//${location.hostname}:${health.viser_port}/`;
+  await loadLibrary();
+  await refreshRuns();
+  setInterval(refreshState, 250);
+  setInterval(refreshRuns, 2000);
+}
+
+// ---------------------------------------------------------------- library
+const library = { tab: "clips", clips: [], characters: [], configs: null };
+
+async function loadLibrary() {
+  [library.clips, library.characters, library.configs] = await Promise.all([
+    api("GET", "/api/motions"), api("GET", "/api/characters"), api("GET", "/api/configs"),
+  ]);
+  fillLaunchForm();
+  renderLibrary();
+}
+
+function renderLibrary() {
+  const q = $("filter").value.toLowerCase();
+  const list = $("library-list");
+  list.replaceChildren();
+  const rows = {
+    clips: () => library.clips.map((m) => [m.path, m.error ? m.error :
+      `${m.num_frames} frames · ${m.fps} fps · ${m.duration.toFixed(2)} s · ${m.loop_mode} · ${m.character || "no character fits"}`,
+      () => loadClip(m)]),
+    characters: () => library.characters.map((c) => [c.path, `${c.num_bodies} bodies · ${c.dof_size} DoFs · frame width ${c.frame_dim}`]),
+    datasets: () => library.configs.datasets.map((d) => [d.path, d.error || `${d.motions.length} clips`]),
+    configs: () => [
+      ...library.configs.arg_files.map((a) => [a.path, `arg file · ${Object.keys(a.args).length} keys`]),
+      ...["envs", "agents", "engines"].flatMap((k) => library.configs[k].map((c) => [c.path, k])),
+    ],
+  }[library.tab]();
+  for (const [title, meta, onclick] of rows) {
+    if (q && !title.toLowerCase().includes(q)) continue;
+    const item = el("div", { class: "item", title }, el("div", {}, title.split("/").pop()), el("div", { class: "meta" }, meta));
+    if (onclick) item.addEventListener("click", () => { document.querySelectorAll("#library-list .selected").forEach((e) => e.classList.remove("selected")); item.classList.add("selected"); onclick(); });
+    list.append(item);
+  }
+}
+
+async function loadClip(m) {
+  shownClip = null;
+  $("clip-label").textContent = `loading ${m.path}…`;
+  try {
+    applyState(await api("POST", "/api/scene/load_clip", { path: m.path, play: true }));
+  } catch (e) {
+    $("clip-label").textContent = `cannot load ${m.path}: ${e.message}`;
+  }
+}
+
+document.querySelectorAll(".tabs button").forEach((b) => b.addEventListener("click", () => {
+  document.querySelectorAll(".tabs button").forEach((x) => x.classList.toggle("active", x === b));
+  library.tab = b.dataset.tab;
+  renderLibrary();
+}));
+$("filter").addEventListener("input", renderLibrary);
+$("upload").addEventListener("change", async (ev) => {
+  const file = ev.target.files[0];
+  if (!file) return;
+  try {
+    const r = await api("POST", `/api/motions/upload?filename=${encodeURIComponent(file.name)}`, file);
+    $("clip-label").textContent = `uploaded ${r.path}`;
+    await loadLibrary();
+  } catch (e) {
+    $("clip-label").textContent = `upload refused: ${e.message}`;
+  }
+  ev.target.value = "";
+});
+
+// ---------------------------------------------------------------- player (state lives on the server)
+let scrubbing = false;
+
+let shownClip = null;
+function applyState(s) {
+  if (s.clip && s.clip !== shownClip) {  // also after a reload: the player lives on the server
+    shownClip = s.clip;
+    $("clip-label").textContent = `${s.clip} on ${s.char}`;
+  }
+  const t = $("timeline");
+  t.max = Math.max(0, s.num_frames - 1);
+  if (!scrubbing) t.value = s.frame;
+  $("frame-label").textContent = s.clip ? `${s.frame}/${s.num_frames - 1} · ${s.time.toFixed(2)} s` : "–";
+  $("play").textContent = s.playing ? "Pause" : "Play";
+  $("loop").checked = s.loop;
+  $("follow").checked = s.follow;
+  if (document.activeElement !== $("speed")) $("speed").value = String(s.speed);
+}
+
+async function refreshState() {
+  try { applyState(await api("GET", "/api/scene/state")); } catch (e) { /* scene off or server restarting */ }
+}
+
+const playerCommand = async (path, body) => applyState(await api("POST", `/api/scene/${path}`, body));
+$("play").addEventListener("click", () => playerCommand("toggle"));
+$("step").addEventListener("click", () => playerCommand("step", { frames: 1 }));
+$("timeline").addEventListener("input", (ev) => { scrubbing = true; playerCommand("seek", { frame: Number(ev.target.value) }); });
+$("timeline").addEventListener("change", () => { scrubbing = false; });
+$("speed").addEventListener("change", (ev) => playerCommand("configure", { speed: Number(ev.target.value) }));
+$("loop").addEventListener("change", (ev) => playerCommand("configure", { loop: ev.target.checked }));
+$("follow").addEventListener("change", (ev) => playerCommand("configure", { follow: ev.target.checked }));
+
+// MimicKit's keys: Enter plays/pauses, Space steps one frame (not while typing in a field).
+document.addEventListener("keydown", (ev) => {
+  if (ev.target.closest && ev.target.closest("input, select, textarea, button, form")) return;
+  if (ev.key === "Enter") { ev.preventDefault(); playerCommand("toggle"); }
+  else if (ev.key === " ") { ev.preventDefault(); playerCommand("step", { frames: 1 }); }
+});
+
+// ---------------------------------------------------------------- runs
+let selectedRun = null;
+let metricsSource = null;
+const plots = {};
+document.querySelectorAll("#curves canvas").forEach((c) => {
+  plots[c.dataset.group] = new LinePlot(c, { returns: "return", lengths: "episode length", rewards: "reward terms", losses: "losses" }[c.dataset.group]);
+  plots[c.dataset.group].draw();
+});
+
+function fillLaunchForm() {
+  const argSel = $("arg-file"), keep = argSel.value;
+  argSel.replaceChildren(...library.configs.arg_files.map((a) => el("option", { value: a.path }, a.name)));
+  if (keep) argSel.value = keep;
+  const motionSel = $("motion-file"), keepMotion = motionSel.value;
+  motionSel.replaceChildren(el("option", { value: "" }, "(from the arg file)"),
+    ...library.configs.datasets.map((d) => el("option", { value: d.path }, `dataset: ${d.name}`)),
+    ...library.clips.filter((m) => !m.error).map((m) => el("option", { value: m.path }, m.path)));
+  motionSel.value = keepMotion;
+  $("launch-button").disabled = library.configs.arg_files.length === 0;
+  if (!library.configs.arg_files.length) $("launch-error").textContent = "no arg files found (args/*.txt)";
+}
+
+$("launch").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const body = { arg_file: $("arg-file").value };
+  if ($("run-name").value) body.name = $("run-name").value;
+  if ($("num-envs").value) body.num_envs = Number($("num-envs").value);
+  if ($("max-samples").value) body.max_samples = Number($("max-samples").value);
+  if ($("motion-file").value) body.motion_file = $("motion-file").value;
+  try {
+    const run = await api("POST", "/api/runs", body);
+    $("launch-error").textContent = "";
+    selectRun(run.id);
+    await refreshRuns();
+  } catch (e) {
+    $("launch-error").textContent = e.message;
+  }
+});
+
+async function refreshRuns() {
+  let runs;
+  try { runs = await api("GET", "/api/runs"); } catch (e) { return; }
+  const list = $("run-list");
+  list.replaceChildren(...runs.slice().reverse().map(runItem));
+  if (selectedRun !== null) updateConsole();
+}
+
+function runItem(run) {
+  const act = (label, fn, enabled = true) => {
+    const b = el("button", { "data-action": label.toLowerCase(), onclick: (ev) => { ev.stopPropagation(); fn(); } }, label);
+    b.disabled = !enabled;
+    return b;
+  };
+  const active = ["running", "stopping", "queued"].includes(run.status);
+  const finished = ["succeeded", "failed", "stopped", "interrupted"].includes(run.status);
+  const item = el("div", { class: `item${run.id === selectedRun ? " selected" : ""}`, "data-run-id": run.id, onclick: () => selectRun(run.id) },
+    el("div", {}, `#${run.id} ${run.name} `, el("span", { class: `status ${run.status}` }, run.status)),
+    el("div", { class: "meta" }, `${run.config.arg_file.split("/").pop()}${run.exit_code !== null ? ` · exit ${run.exit_code}` : ""}${run.checkpoint ? " · checkpoint" : ""}`),
+    el("div", { class: "actions" },
+      act("Stop", () => runAction(run, "stop"), active && run.status !== "stopping"),
+      act("Resume", () => runAction(run, "resume"), finished && !!run.checkpoint),
+      act("Delete", () => deleteRun(run), !active)));
+  return item;
+}
+
+async function runAction(run, action) {
+  try { await api("POST", `/api/runs/${run.id}/${action}`); } catch (e) { alert(e.message); }
+  if (action === "resume") selectRun(run.id);
+  refreshRuns();
+}
+
+async function deleteRun(run) {
+  if (!confirm(`Delete run #${run.id} "${run.name}" and its folder ${run.out_dir}?`)) return;
+  try { await api("DELETE", `/api/runs/${run.id}`); } catch (e) { alert(e.message); }
+  if (selectedRun === run.id) { selectedRun = null; if (metricsSource) metricsSource.close(); }
+  refreshRuns();
+}
+
+// Live curves: an EventSource on the run's metrics stream; each event is one metrics.jsonl row.
+function selectRun(id) {
+  selectedRun = id;
+  if (metricsSource) metricsSource.close();
+  Object.values(plots).forEach((p) => p.clear());
+  $("curves-title").textContent = `Curves · run #${id}`;
+  metricsSource = new EventSource(withToken(`/api/runs/${id}/metrics`));
+  metricsSource.onmessage = (ev) => addRow(JSON.parse(ev.data));
+  metricsSource.addEventListener("end", () => metricsSource.close());
+  document.querySelectorAll("#run-list .item").forEach((e) => e.classList.toggle("selected", Number(e.dataset.runId) === id));
+  updateConsole();
+}
+
+let redrawPending = false;
+function addRow(row) {
+  const x = row.samples ?? row.iteration ?? 0;
+  for (const [k, v] of Object.entries(row)) {
+    if (typeof v !== "number") continue;
+    if (k === "train_return" || k === "test_return") plots.returns.add(k, x, v);
+    else if (k.endsWith("episode_length")) plots.lengths.add(k, x, v);
+    else if (k.startsWith("reward_terms.")) plots.rewards.add(k, x, v);
+    else if (k.includes("loss")) plots.losses.add(k, x, v);
+  }
+  if (!redrawPending) {  // many rows arrive at once when a stream starts: draw once per frame
+    redrawPending = true;
+    requestAnimationFrame(() => { redrawPending = false; Object.values(plots).forEach((p) => p.draw()); });
+  }
+}
+
+async function updateConsole() {
+  if (selectedRun === null) return;
+  try {
+    const log = await api("GET", `/api/runs/${selectedRun}/log?lines=40`);
+    $("console").textContent = log.lines.join("\n");
+  } catch (e) { $("console").textContent = ""; }
+}
+
+init().catch((e) => { $("health").textContent = `cannot reach the studio API: ${e.message}`; });
+
+// Clicking a player button must not leave it focused: Space/Enter would press it again.
+document.querySelectorAll("#player button").forEach((b) => b.addEventListener("mouseup", () => b.blur()));

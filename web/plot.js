@@ -1,0 +1,77 @@
+// A small line plot on a <canvas>: several named series, autoscaled axes, a legend.
+// Enough for training curves; no library (the studio runs without internet).
+"use strict";
+
+const PLOT_COLORS = ["#f0a830", "#5a9ae0", "#3cc878", "#e0564f", "#b77fe0", "#40c8c8", "#e07fb0", "#a0a060"];
+
+class LinePlot {
+  constructor(canvas, title) {
+    this.canvas = canvas;
+    this.title = title;
+    this.series = new Map(); // name -> [[x, y], ...]
+  }
+
+  clear() {
+    this.series.clear();
+    this.draw();
+  }
+
+  add(name, x, y) {
+    if (!Number.isFinite(x) || !Number.isFinite(y)) return;
+    if (!this.series.has(name)) this.series.set(name, []);
+    this.series.get(name).push([x, y]);
+  }
+
+  bounds() {
+    let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
+    for (const pts of this.series.values()) {
+      for (const [x, y] of pts) {
+        x0 = Math.min(x0, x); x1 = Math.max(x1, x);
+        y0 = Math.min(y0, y); y1 = Math.max(y1, y);
+      }
+    }
+    if (x0 === x1) { x0 -= 1; x1 += 1; }
+    if (y0 === y1) { y0 -= 1; y1 += 1; }
+    return [x0, x1, y0, y1];
+  }
+
+  draw() {
+    this.canvas.dataset.series = String(this.series.size); // lets tests (and curious users) see what is drawn
+    // Draw at the element's real size so lines stay sharp when CSS scales the canvas.
+    const c = this.canvas, ratio = window.devicePixelRatio || 1;
+    const w = c.clientWidth || c.width, h = c.clientHeight || c.height;
+    if (c.width !== Math.round(w * ratio)) { c.width = Math.round(w * ratio); c.height = Math.round(h * ratio); }
+    const g = c.getContext("2d");
+    g.setTransform(ratio, 0, 0, ratio, 0, 0);
+    g.clearRect(0, 0, w, h);
+    g.font = "11px system-ui, sans-serif";
+    g.fillStyle = "#8a91a0";
+    g.fillText(this.title, 6, 12);
+    if (this.series.size === 0) { g.fillText("no data yet", w / 2 - 28, h / 2); return; }
+    const pad = { l: 46, r: 8, t: 18, b: 16 };
+    const [x0, x1, y0, y1] = this.bounds();
+    const sx = (x) => pad.l + (x - x0) / (x1 - x0) * (w - pad.l - pad.r);
+    const sy = (y) => h - pad.b - (y - y0) / (y1 - y0) * (h - pad.t - pad.b);
+    g.strokeStyle = "#2e323c";
+    g.beginPath(); g.moveTo(pad.l, pad.t); g.lineTo(pad.l, h - pad.b); g.lineTo(w - pad.r, h - pad.b); g.stroke();
+    g.fillText(fmt(y1), 2, pad.t + 4); g.fillText(fmt(y0), 2, h - pad.b);
+    g.fillText(fmt(x1), w - pad.r - 40, h - 3);
+    let i = 0, legendX = 60;
+    for (const [name, pts] of this.series) {
+      const color = PLOT_COLORS[i++ % PLOT_COLORS.length];
+      g.strokeStyle = color; g.lineWidth = 1.5; g.beginPath();
+      pts.forEach(([x, y], k) => (k ? g.lineTo(sx(x), sy(y)) : g.moveTo(sx(x), sy(y))));
+      g.stroke();
+      g.fillStyle = color;
+      const label = name.replace("reward_terms.", "");
+      g.fillText(label, legendX + 40, 12);
+      legendX += g.measureText(label).width + 10;
+    }
+  }
+}
+
+function fmt(v) {
+  const a = Math.abs(v);
+  if (a >= 1e4 || (a > 0 && a < 1e-2)) return v.toExponential(1);
+  return v.toFixed(a >= 100 ? 0 : 2);
+}
