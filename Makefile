@@ -1,11 +1,11 @@
-# The two commands of the README: `make demo` and `make test`. Both set up everything they need.
+# The two commands of the README: `make studio` and `make test`. Both set up everything they need.
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export MIMICKIT_TEST_DATA ?= $(abspath ../shared/data)
 
-.PHONY: setup demo test lint format
+.PHONY: setup studio test browser lint format
 
 setup: $(STAMP)
 
@@ -17,15 +17,19 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e ".[dev]"
 	touch $(STAMP)
 
-# Until the studio lands, the embedded default is shown as the report of the project's demo clip.
-demo: setup
-	$(BIN)/mimickit motion info data/motions/humanoid_demo_squat.pkl --char data/assets/humanoid/humanoid.xml
+# The studio on the embedded default: the project's humanoid and demo clip, MuJoCo on the CPU.
+studio: setup
+	$(BIN)/mimickit-studio serve
 
-test: setup
+# Chromium from Debian for the browser tests (Playwright's own download is not used).
+browser:
+	@command -v chromium >/dev/null || { apt-get update -q && apt-get install -y -q chromium; }
+
+test: setup browser
 	$(BIN)/python -m pytest -q
 
 lint: setup
-	$(BIN)/ruff check mimickit tests benchmarks
+	$(BIN)/ruff check mimickit studio tests benchmarks
 
 format: setup
-	$(BIN)/ruff format mimickit tests benchmarks
+	$(BIN)/ruff format mimickit studio tests benchmarks

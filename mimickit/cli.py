@@ -60,9 +60,24 @@ def _motion_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench(args: argparse.Namespace) -> int:
+    from mimickit.tools.bench import format_bench, run_bench
+    from mimickit.util.paths import set_data_dir
+
+    set_data_dir(args.data_dir)
+    results = [run_bench(args.engine_config, args.env_config, n, args.steps) for n in args.num_envs]
+    if args.json:
+        print(json.dumps(results[0] if len(results) == 1 else results))
+    else:
+        print("\n".join(format_bench(r) for r in results))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mimickit", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("train", help="train an agent (MimicKit arguments: --arg_file, --num_envs, --out_dir, ...)")
+    sub.add_parser("test", help="test a checkpoint (MimicKit arguments: --arg_file, --model_file, --json, ...)")
 
     motion = sub.add_parser("motion", help="inspect, validate and convert motion clips")
     msub = motion.add_subparsers(dest="motion_command", required=True)
@@ -82,11 +97,34 @@ def build_parser() -> argparse.ArgumentParser:
     conv.add_argument("input", help="DeepMimic humanoid3d clip (.txt, JSON)")
     conv.add_argument("out", help="output .pkl")
     conv.set_defaults(func=_motion_convert)
+
+    bench = sub.add_parser("bench", help="env steps/s with random actions vs raw MuJoCo rollout on the same model")
+    bench.add_argument("--engine_config", default="data/engines/mujoco_engine.yaml")
+    bench.add_argument("--env_config", default="data/envs/deepmimic_humanoid_env.yaml")
+    bench.add_argument("--num_envs", type=int, nargs="+", default=[256], help="one or more env counts")
+    bench.add_argument("--steps", type=int, default=100, help="control steps measured per env count")
+    bench.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
+    bench.add_argument("--json", action="store_true", help="print JSON (one object, or a list for several counts)")
+    bench.set_defaults(func=_bench)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ("train", "test"):
+        return _train_or_test(argv[0], argv[1:])
     return run_cli(build_parser(), argv)
+
+
+def _train_or_test(mode: str, rest: list[str]) -> int:
+    """`mimickit train|test` take MimicKit's `--key value` arguments (see `python mimickit/run.py`)."""
+    from mimickit import run
+
+    if "-h" in rest or "--help" in rest:
+        print(f"usage: mimickit {mode} --arg_file FILE [--key value ...]\n")
+        print(run.__doc__)
+        return 0
+    return run.main(["--mode", mode, *rest])
 
 
 def run_cli(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:

@@ -172,16 +172,18 @@ class KinCharModel:
         self, root_pos: torch.Tensor, root_rot: torch.Tensor, joint_rot: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """World body positions [..., J, 3] and rotations [..., J, 4] from the root and joint rotations."""
-        pos = [root_pos]
-        rot = [root_rot]
-        local_pos = self.local_pos.to(root_pos)
-        local_rot = self.local_rot.to(root_rot)
-        for j in range(1, self.get_num_joints()):
-            p = self.parent_ids[j]
-            pos.append(pos[p] + tu.quat_rotate(rot[p], local_pos[j].expand_as(pos[p])))
-            lr = tu.quat_mul(local_rot[j].expand_as(rot[p]), joint_rot[..., j - 1, :])
-            rot.append(tu.quat_mul(rot[p], lr))
-        return torch.stack(pos, dim=-2), torch.stack(rot, dim=-2)
+        batch = root_pos.shape[:-1]
+        pos = root_pos.new_empty(*batch, self.get_num_joints(), 3)
+        rot = root_rot.new_empty(*batch, self.get_num_joints(), 4)
+        pos[..., 0, :] = root_pos
+        rot[..., 0, :] = root_rot
+        # Bodies of one tree depth depend only on shallower ones: one batched update per depth level.
+        local_rot = tu.quat_mul(self.local_rot[1:].to(joint_rot), joint_rot)  # [..., J-1, 4]
+        for ids, parents in self._fk_levels:
+            parent_rot = rot[..., parents, :]
+            pos[..., ids, :] = pos[..., parents, :] + tu.quat_rotate(parent_rot, self._fk_local_pos[ids].to(pos))
+            rot[..., ids, :] = tu.quat_mul(parent_rot, local_rot[..., ids - 1, :])
+        return pos, rot
 
     def compute_dof_vel(self, rot0: torch.Tensor, rot1: torch.Tensor, dt: float) -> torch.Tensor:
         """DoF velocities [..., D] that take joint rotations rot0 to rot1 in `dt` (local frame)."""
@@ -223,3 +225,16 @@ class KinCharModel:
         self._hinge_axis = torch.tensor(np.array(axes).reshape(-1, 3), dtype=torch.float32, device=dev)
         self._sph_j = torch.tensor(sph_j, dtype=torch.long, device=dev)
         self._sph_d = torch.tensor(sph_d, dtype=torch.long, device=dev).reshape(-1, 3)
+        depth = [0] * len(self.parent_ids)
+        for j in range(1, len(self.parent_ids)):
+            depth[j] = depth[self.parent_ids[j]] + 1
+        self._fk_levels = []
+        for level in range(1, max(depth, default=0) + 1):
+            ids = [j for j, d in enumerate(depth) if d == level]
+            self._fk_levels.append(
+                (
+                    torch.tensor(ids, dtype=torch.long, device=dev),
+                    torch.tensor([self.parent_ids[j] for j in ids], dtype=torch.long, device=dev),
+                )
+            )
+        self._fk_local_pos = self.local_pos

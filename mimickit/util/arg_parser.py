@@ -39,7 +39,7 @@ class ArgParser:
     def has_key(self, key: str) -> bool:
         return key in self._table
 
-    def keys(self) -> list[str]:
+    def all_keys(self) -> list[str]:
         return list(self._table)
 
     def set(self, key: str, *values: str) -> None:

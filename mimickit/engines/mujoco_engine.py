@@ -1,0 +1,902 @@
+"""The MuJoCo (CPU) engine: one compiled MjModel shared by all envs, one MjData per env (spec §2, §11.5).
+
+Build: every object's MJCF is loaded with MjSpec, adapted (3-hinge bodies → one ball joint, passive
+stiffness/damping zeroed, its own motors dropped, a free root joint or a mocap root for `fix_root`) and
+attached under its own name prefix to a scene with a floor. The scene gets one actuator per DoF whose
+gains follow the control mode, and two contact sensors per body (all contacts, floor contacts): MuJoCo
+sums `mj_contactForce` per body in C, in the world frame, instead of a Python loop over contacts.
+
+Step: worker threads (one per core) each step a contiguous chunk of envs with `mj_step(m, d, n)`, which
+releases the GIL: first `substeps - 1` steps with sensors disabled, then the last one with them, then
+`mj_kinematics / mj_comPos / mj_comVel` so that body poses and velocities belong to the final qpos/qvel
+(mj_step leaves them one substep behind). Measured against
+`mujoco.rollout` (bench_util): at equal states the pool runs at 0.95-1.0x rollout's speed, and it keeps
+a live MjData per env for contacts and for drawing, which rollout's scratch data would not.
+
+State: after a step, qpos/qvel/body/sensor arrays of all envs are gathered into stacked numpy arrays
+[N, ...] with one `np.concatenate` per field, converted with vectorised numpy, and written into float32
+buffers that back the torch tensors the getters return (views: they stay live). Setters edit the stacked
+qpos/qvel rows and mark the envs dirty; the next getter or step pushes them into the MjData and
+recomputes the kinematics of those envs only (contact forces keep their last-step values until a step).
+
+Frames (spec §2.4): MuJoCo's free joint velocity is (origin linear velocity in world frame, angular
+velocity in body frame); the framework uses (centre-of-mass linear velocity, angular velocity), both
+world frame. Ball-joint qpos quaternions (w first) are exposed as exp-maps; ball qvel is already the
+local angular velocity. Ball joints are unlimited, as in Newton's MJCF import: the hinges' per-axis
+ranges survive only as action bounds (`get_obj_dof_limits`).
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+
+from mimickit.anim.kin_char_model import JointType, KinCharModel
+from mimickit.anim.mjcf_char_model import load_char_model
+from mimickit.anim.mjcf_loader import compile_spec, load_mjcf_spec
+from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, ObjType
+from mimickit.util import torch_util as tu
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import resolve_data_path
+
+FLOOR_NAME = "floor"
+
+_INTEGRATORS = {
+    "euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+}
+
+# Contact sensor parameters (intprm): report the force only, summed over matching contacts into one
+# world-frame "net force" (reduce mode 3 = netforce), one slot.
+_CONTACT_SENSOR_INTPRM = [1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE), 3, 1]
+
+# MjData fields gathered into stacked [N, ...] arrays after every step.
+# (Actuator forces are read only when asked for: the envs never do.)
+_GATHERED_FIELDS = ("qpos", "qvel", "xpos", "xquat", "xipos", "cvel", "subtree_com", "sensordata")
+
+
+# ---------------------------------------------------------------------------------------------- records
+@dataclass
+class _ObjRecord:
+    """What `create_obj` was asked for; identical in every env except the start pose."""
+
+    obj_type: ObjType
+    asset_file: str
+    name: str
+    is_visual: bool
+    enable_self_collisions: bool
+    fix_root: bool
+    color: tuple[float, ...] | None
+    disable_motors: bool
+
+    def signature(self) -> tuple:
+        return (self.obj_type, self.asset_file, self.is_visual, self.enable_self_collisions, self.fix_root,
+                self.disable_motors)  # fmt: skip
+
+
+@dataclass
+class _ObjLayout:
+    """Where an object lives in the compiled model. Index arrays address qpos/qvel/body/sensor columns."""
+
+    kin: KinCharModel
+    prefix: str
+    body_ids: np.ndarray  # [B] MuJoCo body ids in kinematic DFS order
+    root_qpos: int  # qpos address of the free root joint, -1 for a mocap (fixed) root
+    root_qvel: int
+    mocap_id: int  # -1 for a free root
+    root_ipos: np.ndarray  # [3] centre of mass of the root body in its own frame
+    dof_qvel: np.ndarray  # [D] qvel index of every DoF
+    hinge_cols: np.ndarray  # [H] DoF columns of hinge joints
+    hinge_qpos: np.ndarray  # [H] their qpos addresses
+    ball_cols: np.ndarray  # [K, 3] DoF columns of ball joints (exp-map components)
+    ball_qpos: np.ndarray  # [K, 4] their quaternion qpos addresses (w first)
+    act_ids: np.ndarray  # [D] actuator per DoF, empty without motors
+    contact_adr: np.ndarray  # [B * 3] sensordata columns: total contact force per body (on the sensor's body1)
+    ground_adr: np.ndarray  # [B * 3] sensordata columns: floor contact force per body
+    kp: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [D] gains as used by the control mode
+    kd: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def num_dofs(self) -> int:
+        return len(self.dof_qvel)
+
+    @property
+    def num_bodies(self) -> int:
+        return len(self.body_ids)
+
+
+class _ObjState:
+    """One object's state buffers. The refresh writes float32 numpy arrays `host[name]`; the getters return
+    the torch tensors `tensors[name]`, which share memory with `host` on the CPU and are uploaded copies on
+    another device. Names and shapes: body_pos/body_vel/body_ang_vel/contact_forces/ground_contact_forces
+    [N, B, 3], body_rot [N, B, 4], dof_pos/dof_vel/dof_forces [N, D]; root_pos/root_rot/root_vel/
+    root_ang_vel [N, 3|4] are views of body 0 of the body buffers (the root is body 0)."""
+
+    def __init__(self, n: int, b: int, d: int, device: torch.device):
+        shapes = {
+            "body_pos": (n, b, 3), "body_rot": (n, b, 4), "body_vel": (n, b, 3), "body_ang_vel": (n, b, 3),
+            "contact_forces": (n, b, 3), "ground_contact_forces": (n, b, 3),
+            "dof_pos": (n, d), "dof_vel": (n, d), "dof_forces": (n, d),
+        }  # fmt: skip
+        self.host = {k: np.zeros(shape, dtype=np.float32) for k, shape in shapes.items()}
+        self.on_cpu = device.type == "cpu"
+        self.tensors = {
+            k: torch.from_numpy(a) if self.on_cpu else torch.zeros(a.shape, device=device) for k, a in self.host.items()
+        }
+        for root, body in _ROOT_VIEWS.items():
+            self.tensors[root] = self.tensors[body][:, 0]
+
+    def upload(self, rows: slice | np.ndarray, names: tuple[str, ...] | None = None) -> None:
+        """Copy refreshed host rows to the device tensors (nothing to do on the CPU)."""
+        if self.on_cpu:
+            return
+        for k in names or tuple(self.host):
+            a, t = self.host[k], self.tensors[k]
+            if isinstance(rows, slice):
+                t[rows].copy_(torch.from_numpy(a[rows]))
+            else:
+                t[torch.from_numpy(rows).to(t.device)] = torch.from_numpy(a[rows]).to(t.device)
+
+
+_ROOT_VIEWS = {"root_pos": "body_pos", "root_rot": "body_rot", "root_vel": "body_vel", "root_ang_vel": "body_ang_vel"}
+
+
+# ---------------------------------------------------------------------------------------------- scene build
+def _zero_like(value: object) -> object:
+    """0 in the shape MuJoCo uses for this attribute (scalar in older versions, array in 4.x)."""
+    return np.zeros_like(value) if isinstance(value, np.ndarray) else 0.0
+
+
+def _adapt_object_spec(spec: mujoco.MjSpec, rec: _ObjRecord, kin: KinCharModel) -> dict[str, list[float]]:
+    """Make an asset's spec simulation-ready in place; returns per-axis armature of each new ball joint."""
+    for elements in (spec.actuators, spec.sensors, spec.keys):  # own motors go; keyframes no longer fit
+        for e in list(elements):
+            spec.delete(e)
+    for geom in list(spec.worldbody.geoms):  # the asset's own floor, if any: the scene has one
+        spec.delete(geom)
+    root = spec.worldbody.first_body()
+    for j in list(root.joints):
+        spec.delete(j)
+    # The root pose is state (start_pos / start_rot per env), not part of the shared model.
+    root.pos = [0.0, 0.0, 0.0]
+    root.quat = [1.0, 0.0, 0.0, 0.0]
+    if rec.fix_root:
+        root.mocap = True  # welded to the world, yet movable per env through MjData.mocap_pos/quat
+    else:
+        root.add_freejoint()
+
+    ball_armature: dict[str, list[float]] = {}
+    for joint in kin.joints[1:]:
+        body = spec.body(kin.body_names[joint.body_id])
+        if joint.type == JointType.SPHERICAL and len(body.joints) == 3:
+            ball_armature[joint.name] = [float(spec.joint(n).armature) for n in joint.mjcf_joints]
+            _hinges_to_ball(spec, body, joint.name, ball_armature[joint.name])
+        for j in body.joints:  # the gains move into actuators: no passive springs left
+            j.stiffness = _zero_like(j.stiffness)
+            j.damping = _zero_like(j.damping)
+
+    for body in spec.bodies[1:]:
+        if rec.is_visual:
+            body.gravcomp = 1.0  # a ghost floats where the env puts it instead of falling between resets
+        for geom in body.geoms:
+            if rec.is_visual:
+                geom.contype, geom.conaffinity = 0, 0
+            if rec.color is not None:
+                geom.rgba = list(rec.color[:3]) + [rec.color[3] if len(rec.color) > 3 else 1.0]
+    return ball_armature
+
+
+def _hinges_to_ball(spec: mujoco.MjSpec, body: mujoco.MjsBody, name: str, armature: list[float]) -> None:
+    """Replace a body's x/y/z hinge triplet by one unlimited ball joint (as Newton's MJCF import does)."""
+    for j in list(body.joints):
+        spec.delete(j)
+    ball = body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_BALL)
+    ball.limited = mujoco.mjtLimited.mjLIMITED_FALSE
+    ball.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
+    ball.armature = float(np.mean(armature))  # exact per-axis values are patched into the compiled model
+
+
+def _add_floor(scene: mujoco.MjSpec) -> None:
+    scene.worldbody.add_geom(
+        name=FLOOR_NAME,
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[0.0, 0.0, 0.05],
+        condim=3,
+        friction=[1.0, 0.005, 0.0001],
+        rgba=[0.22, 0.24, 0.27, 1.0],
+    )
+
+
+def _set_options(scene: mujoco.MjSpec, config: EngineConfig) -> None:
+    opt = scene.option
+    opt.timestep = 1.0 / config.sim_freq
+    opt.integrator = _INTEGRATORS[config.integrator]
+    opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+    opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+    opt.iterations = config.solver_iterations
+    opt.ls_iterations = config.ls_iterations
+    opt.impratio = 10.0  # mirrors Newton's SolverMuJoCo; only matters for elliptic cones
+
+
+def _actuator_gains(mode: ControlMode, kp: float, kd: float) -> tuple[float, list[float]]:
+    """(gain, bias[0:3]) of an affine actuator: force = gain·ctrl + b0 + b1·length + b2·velocity."""
+    if mode == ControlMode.pos:
+        return kp, [0.0, -kp, -kd]
+    if mode == ControlMode.vel:
+        return kd, [0.0, 0.0, -kd]
+    return 1.0, [0.0, 0.0, 0.0]  # torque, and pd_explicit (its PD torque is computed by the engine)
+
+
+def _add_dof_actuators(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel, mode: ControlMode) -> None:
+    """One actuator per DoF in DoF order; a ball joint gets three with gear e_x, e_y, e_z, whose length is
+    the matching exp-map component of the joint rotation (MuJoCo's ball transmission)."""
+    kp, kd, limit = kin.dof_array("kp"), kin.dof_array("kd"), kin.dof_array("torque_limit")
+    for joint in kin.joints[1:]:
+        for axis in range(joint.dof_dim):
+            col = joint.dof_idx + axis
+            act = scene.add_actuator()
+            act.name = f"{prefix}{joint.name}_{'xyz'[axis]}" if joint.dof_dim == 3 else f"{prefix}{joint.name}"
+            act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+            act.target = prefix + joint.name if joint.type == JointType.SPHERICAL else prefix + joint.mjcf_joints[0]
+            gear = np.zeros(6)
+            gear[axis] = 1.0
+            act.gear = gear
+            gain, bias = _actuator_gains(mode, float(kp[col]), float(kd[col]))
+            gainprm, biasprm = np.zeros_like(act.gainprm), np.zeros_like(act.biasprm)
+            gainprm[0], biasprm[:3] = gain, bias
+            act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+            act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+            act.gainprm, act.biasprm = gainprm, biasprm
+            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+            if np.isfinite(limit[col]):
+                act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+                act.forcerange = [-float(limit[col]), float(limit[col])]
+
+
+def _add_contact_sensors(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel) -> None:
+    """Per body: net force over all its contacts, then over its contacts with the floor."""
+    for name in kin.body_names:
+        for refname in (None, FLOOR_NAME):
+            scene.add_sensor(
+                name=f"{prefix}{name}_{'ground' if refname else 'contact'}",
+                type=mujoco.mjtSensor.mjSENS_CONTACT,
+                objtype=mujoco.mjtObj.mjOBJ_BODY,
+                objname=prefix + name,
+                reftype=mujoco.mjtObj.mjOBJ_GEOM if refname else mujoco.mjtObj.mjOBJ_UNKNOWN,
+                refname=refname or "",
+                intprm=_CONTACT_SENSOR_INTPRM,
+            )
+
+
+def _exclude_self_collisions(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel) -> None:
+    names = kin.body_names
+    for a in range(len(names)):
+        for b in range(a + 1, len(names)):
+            scene.add_exclude(bodyname1=prefix + names[a], bodyname2=prefix + names[b])
+
+
+# ---------------------------------------------------------------------------------------------- engine
+class MujocoEngine(Engine):
+    """MuJoCo on the CPU; see the module docstring. Tensor shapes as in `Engine`."""
+
+    def __init__(self, config: EngineConfig, num_envs: int, device: torch.device | str, visualize: bool = False):
+        super().__init__(config, num_envs, device, visualize)
+        self._env_objs: list[list[_ObjRecord]] = []
+        self._start_poses: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per env, per obj: (pos[3], xyzw[4])
+        self._kin_cache: dict[str, KinCharModel] = {}
+        self.mj_model: mujoco.MjModel | None = None
+        self.mj_datas: list[mujoco.MjData] = []
+        self._pool: ThreadPoolExecutor | None = None
+        self._chunks: list[slice] = []  # env rows per worker thread, set by initialize_sim
+        self._sim_time = 0.0
+
+    def get_name(self) -> str:
+        return "mujoco"
+
+    # ------------------------------------------------------------------ creation
+    def create_env(self) -> int:
+        env_id = len(self._env_objs)
+        if env_id >= self._num_envs:
+            raise MimicKitError(f"create_env: all {self._num_envs} envs already exist")
+        self._env_objs.append([])
+        self._start_poses.append([])
+        return env_id
+
+    def create_obj(
+        self,
+        env_id: int,
+        obj_type: ObjType,
+        asset_file: str,
+        name: str,
+        is_visual: bool = False,
+        enable_self_collisions: bool = True,
+        fix_root: bool = False,
+        start_pos: np.ndarray | None = None,
+        start_rot: np.ndarray | None = None,
+        color: np.ndarray | None = None,
+        disable_motors: bool = False,
+    ) -> int:
+        if self.mj_model is not None:
+            raise MimicKitError("create_obj: the simulation is already initialized")
+        if not 0 <= env_id < len(self._env_objs):
+            raise MimicKitError(f"create_obj: env {env_id} was not created (call create_env first)")
+        path = str(resolve_data_path(asset_file))  # configs name assets as "data/assets/..."
+        if not Path(path).is_file():
+            raise MimicKitError(f"asset file not found: {path}")
+        rec = _ObjRecord(ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root,
+                         None if color is None else tuple(float(c) for c in np.asarray(color).ravel()),
+                         disable_motors)  # fmt: skip
+        pos = np.zeros(3) if start_pos is None else np.asarray(start_pos, dtype=np.float64).reshape(3)
+        rot = np.array([0.0, 0.0, 0.0, 1.0]) if start_rot is None else np.asarray(start_rot, np.float64).reshape(4)
+        self._env_objs[env_id].append(rec)
+        self._start_poses[env_id].append((pos, rot / np.linalg.norm(rot)))
+        return len(self._env_objs[env_id]) - 1
+
+    def initialize_sim(self) -> None:
+        objs = self._check_env_objects()
+        self.mj_model, self._layouts = self._build_model(objs)
+        if self._config.control_mode == ControlMode.pd_explicit:
+            self._check_pd_explicit()
+        m = self.mj_model
+        self.mj_datas = [mujoco.MjData(m) for _ in range(self._num_envs)]
+        self._views = {f: [getattr(d, f) for d in self.mj_datas] for f in _GATHERED_FIELDS}
+        self._host = {f: np.zeros((self._num_envs, *self._views[f][0].shape)) for f in _GATHERED_FIELDS}
+        self._mocap_pos = np.zeros((self._num_envs, m.nmocap, 3))
+        self._mocap_quat = np.zeros((self._num_envs, m.nmocap, 4))
+        self._ctrl = np.zeros((self._num_envs, m.nu))
+        self._pd_target = np.zeros((self._num_envs, m.nu))
+        self._xfrc = np.zeros((self._num_envs, m.nbody, 6))
+        self._force_envs = np.zeros(self._num_envs, dtype=bool)
+        self._dirty = np.zeros(self._num_envs, dtype=bool)
+        self._states = [_ObjState(self._num_envs, lay.num_bodies, lay.num_dofs, self._device) for lay in self._layouts]
+        self._place_start_poses()
+        self._init_threads()
+        self._sync(force_all=True)
+        for d in self.mj_datas:  # contacts and sensors of the start state, so that getters start sensible
+            mujoco.mj_forward(m, d)
+        self._gather(slice(None))
+        self._refresh(slice(None))
+
+    def _check_env_objects(self) -> list[_ObjRecord]:
+        if len(self._env_objs) != self._num_envs:
+            raise MimicKitError(f"initialize_sim: {len(self._env_objs)} of {self._num_envs} envs were created")
+        objs = self._env_objs[0]
+        for e, env_objs in enumerate(self._env_objs):
+            if [o.signature() for o in env_objs] != [o.signature() for o in objs]:
+                raise MimicKitError(
+                    f"env {e} has different objects than env 0; the MuJoCo engine needs identical object lists"
+                )
+        return objs
+
+    def _kin_model(self, asset_file: str) -> KinCharModel:
+        if asset_file not in self._kin_cache:
+            self._kin_cache[asset_file] = load_char_model(asset_file)
+        return self._kin_cache[asset_file]
+
+    def _build_model(self, objs: list[_ObjRecord]) -> tuple[mujoco.MjModel, list[_ObjLayout]]:
+        cfg = self._config
+        scene = mujoco.MjSpec()
+        scene.modelname = "mimickit_scene"
+        _set_options(scene, cfg)
+        _add_floor(scene)
+        prefixes, ball_armature = [], []
+        for i, rec in enumerate(objs):
+            kin = self._kin_model(rec.asset_file)
+            spec = load_mjcf_spec(rec.asset_file)
+            ball_armature.append(_adapt_object_spec(spec, rec, kin))
+            prefix = f"{i}_{rec.name}/"
+            scene.attach(spec, prefix=prefix, frame=scene.worldbody.add_frame())
+            if not rec.enable_self_collisions:
+                _exclude_self_collisions(scene, prefix, kin)
+            if self._has_motors(rec, kin):
+                _add_dof_actuators(scene, prefix, kin, cfg.control_mode)
+            if not rec.is_visual:
+                _add_contact_sensors(scene, prefix, kin)
+            prefixes.append(prefix)
+        m = compile_spec(scene, objs[0].asset_file if objs else "scene")
+        layouts = [self._layout(m, rec, prefix) for rec, prefix in zip(objs, prefixes, strict=True)]
+        for lay, armature in zip(layouts, ball_armature, strict=True):
+            for jname, values in armature.items():  # per-axis hinge armature onto the ball's 3 DoFs
+                j = m.joint(lay.prefix + jname).id
+                m.dof_armature[m.jnt_dofadr[j] : m.jnt_dofadr[j] + 3] = values
+        return m, layouts
+
+    def _layout(self, m: mujoco.MjModel, rec: _ObjRecord, prefix: str) -> _ObjLayout:
+        kin = self._kin_model(rec.asset_file)
+        body_ids = np.array([m.body(prefix + n).id for n in kin.body_names])
+        root = int(body_ids[0])
+        free = m.body_jntnum[root] == 1
+        root_jnt = int(m.body_jntadr[root])
+        dof_qvel, hinge_cols, hinge_qpos, ball_cols, ball_qpos = [], [], [], [], []
+        for joint in kin.joints[1:]:
+            if joint.dof_dim == 0:
+                continue
+            j = int(m.body_jntadr[body_ids[joint.body_id]])
+            qadr, vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+            if joint.type == JointType.HINGE:
+                hinge_cols.append(joint.dof_idx)
+                hinge_qpos.append(qadr)
+                dof_qvel.append(vadr)
+            else:
+                ball_cols.append([joint.dof_idx + k for k in range(3)])
+                ball_qpos.append([qadr + k for k in range(4)])
+                dof_qvel += [vadr + k for k in range(3)]
+        act_names = self._actuator_names(kin) if self._has_motors(rec, kin) else []
+        act_ids = np.array([m.actuator(prefix + a).id for a in act_names], dtype=np.int64)
+        contact_adr, ground_adr = [], []
+        if not rec.is_visual:
+            for n in kin.body_names:
+                contact_adr += _sensor_columns(m, f"{prefix}{n}_contact")
+                ground_adr += _sensor_columns(m, f"{prefix}{n}_ground")
+        lay = _ObjLayout(
+            kin=kin,
+            prefix=prefix,
+            body_ids=body_ids,
+            root_qpos=int(m.jnt_qposadr[root_jnt]) if free else -1,
+            root_qvel=int(m.jnt_dofadr[root_jnt]) if free else -1,
+            mocap_id=-1 if free else int(m.body_mocapid[root]),
+            root_ipos=m.body_ipos[root].copy(),
+            dof_qvel=np.array(dof_qvel, dtype=np.int64),
+            hinge_cols=np.array(hinge_cols, dtype=np.int64),
+            hinge_qpos=np.array(hinge_qpos, dtype=np.int64),
+            ball_cols=np.array(ball_cols, dtype=np.int64).reshape(-1, 3),
+            ball_qpos=np.array(ball_qpos, dtype=np.int64).reshape(-1, 4),
+            act_ids=act_ids.astype(np.int64),
+            contact_adr=np.array(contact_adr, dtype=np.int64),
+            ground_adr=np.array(ground_adr, dtype=np.int64),
+        )
+        lay.kp, lay.kd = self._mode_gains(rec, kin)
+        return lay
+
+    def _has_motors(self, rec: _ObjRecord, kin: KinCharModel) -> bool:
+        return self._config.control_mode != ControlMode.none and not rec.disable_motors and kin.get_dof_size() > 0
+
+    @staticmethod
+    def _actuator_names(kin: KinCharModel) -> list[str]:
+        return [f"{j.name}_{'xyz'[a]}" if j.dof_dim == 3 else j.name for j in kin.joints[1:] for a in range(j.dof_dim)]
+
+    def _mode_gains(self, rec: _ObjRecord, kin: KinCharModel) -> tuple[np.ndarray, np.ndarray]:
+        kp, kd = kin.dof_array("kp"), kin.dof_array("kd")
+        mode = self._config.control_mode
+        if not self._has_motors(rec, kin) or mode in (ControlMode.torque, ControlMode.none):
+            return np.zeros_like(kp), np.zeros_like(kd)
+        if mode == ControlMode.vel:
+            return np.zeros_like(kp), kd
+        return kp, kd
+
+    def _place_start_poses(self) -> None:
+        """Write every env's start poses into the stacked state (pushed into MjData by `_sync`)."""
+        qpos0 = self.mj_model.qpos0
+        self._host["qpos"][:] = qpos0
+        for e, poses in enumerate(self._start_poses):
+            for lay, (pos, rot) in zip(self._layouts, poses, strict=True):
+                wxyz = np.array([rot[3], rot[0], rot[1], rot[2]])
+                if lay.root_qpos >= 0:
+                    self._host["qpos"][e, lay.root_qpos : lay.root_qpos + 3] = pos
+                    self._host["qpos"][e, lay.root_qpos + 3 : lay.root_qpos + 7] = wxyz
+                else:
+                    self._mocap_pos[e, lay.mocap_id] = pos
+                    self._mocap_quat[e, lay.mocap_id] = wxyz
+
+    def _init_threads(self) -> None:
+        nthread = self._config.num_threads or os.cpu_count() or 1
+        nthread = max(1, min(nthread, self._num_envs))
+        # One contiguous chunk per thread: more, smaller chunks balanced load no better (measured).
+        nchunk = nthread
+        bounds = np.linspace(0, self._num_envs, nchunk + 1).round().astype(int)
+        self._chunks = [slice(int(lo), int(hi)) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True) if hi > lo]
+        # Per env: (MjData, its ctrl array, the env's row of the command buffer), iterated by the workers.
+        self._env_io = [(d, d.ctrl, self._ctrl[i]) for i, d in enumerate(self.mj_datas)]
+        self._pool = ThreadPoolExecutor(max_workers=nthread - 1) if nthread > 1 else None
+
+    def _check_pd_explicit(self) -> None:
+        for lay in self._layouts:
+            if len(lay.ball_cols):
+                raise MimicKitError(
+                    f"control_mode pd_explicit supports joints with at most one DoF; '{lay.kin.source}' has "
+                    "spherical joints (use control_mode pos)"
+                )
+
+    @property
+    def num_threads(self) -> int:
+        """Threads that step the envs (the calling thread included)."""
+        return len(self._chunks) if self._pool is not None else 1
+
+    def close(self) -> None:
+        """Stop the worker threads; later steps run on the calling thread alone."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    # ------------------------------------------------------------------ stepping
+    def set_cmd(self, obj_id: int, cmd: torch.Tensor) -> None:
+        lay = self._layouts[obj_id]
+        mode = self._config.control_mode
+        if mode == ControlMode.none or len(lay.act_ids) == 0:
+            return
+        values = np.broadcast_to(_to_numpy(cmd), (self._num_envs, lay.num_dofs))
+        target = self._pd_target if mode == ControlMode.pd_explicit else self._ctrl
+        target[:, lay.act_ids] = values
+
+    def step(self) -> None:
+        self._sync()
+        self._push_body_forces()
+        nsub = self._config.substeps
+        if nsub > 1:
+            # The sensors (our contact-force readout, ~6% of a substep) are read only after the last
+            # substep: switch them off before it. The flag is flipped only while no worker runs.
+            opt = self.mj_model.opt
+            flags = opt.disableflags
+            opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_SENSOR
+            try:
+                self._run_workers(nsub - 1, first=True, last=False)
+            finally:
+                opt.disableflags = flags
+        self._run_workers(1, first=nsub == 1, last=True)
+        self._clear_body_forces()
+        # Gather and refresh once here rather than per chunk in the workers: measured as fast or faster
+        # (numpy ops in a worker hold the GIL that the other workers need between mj_step calls).
+        self._gather(slice(None))
+        self._refresh(slice(None))
+        self._sim_time += self.get_timestep()
+
+    def _run_workers(self, nstep: int, first: bool, last: bool) -> None:
+        """Advance every env `nstep` substeps, one chunk per worker thread."""
+        pd = self._config.control_mode == ControlMode.pd_explicit
+        worker = partial(self._step_chunk_pd_explicit if pd else self._step_chunk, nstep=nstep, first=first, last=last)
+        if self._pool is None:  # one thread, or closed
+            for chunk in self._chunks:
+                worker(chunk)
+            return
+        # The calling thread steps the first chunk itself: one thread hand-off fewer per call.
+        futures = [self._pool.submit(worker, chunk) for chunk in self._chunks[1:]]
+        worker(self._chunks[0])
+        for f in futures:
+            f.result()  # re-raises a worker's exception here
+
+    def _step_chunk(self, rows: slice, nstep: int, first: bool, last: bool) -> None:
+        """Worker: `nstep` substeps of a contiguous chunk of envs (mj_step releases the GIL, so chunks run
+        in parallel); the command is applied on the first call of a control step, kinematics after the last."""
+        m = self.mj_model
+        for d, ctrl, cmd in self._env_io[rows]:
+            if first:
+                ctrl[:] = cmd
+            mujoco.mj_step(m, d, nstep)
+            if last:
+                _update_kinematics(m, d)
+
+    def _step_chunk_pd_explicit(self, rows: slice, nstep: int, first: bool, last: bool) -> None:
+        """Worker for pd_explicit: τ = kp (q* − q) − kd q̇ recomputed before every substep (hinges only)."""
+        m = self.mj_model
+        for i, (d, ctrl, _) in enumerate(self._env_io[rows], start=rows.start):
+            qpos, qvel = d.qpos, d.qvel
+            for _ in range(nstep):
+                for lay in self._layouts:
+                    if len(lay.act_ids):
+                        q, qd = qpos[lay.hinge_qpos], qvel[lay.dof_qvel]
+                        # the actuators' forcerange clips τ to ± the torque limit
+                        ctrl[lay.act_ids] = lay.kp * (self._pd_target[i, lay.act_ids] - q) - lay.kd * qd
+                mujoco.mj_step(m, d)
+            if last:
+                _update_kinematics(m, d)
+
+    def _push_body_forces(self) -> None:
+        for i in np.flatnonzero(self._force_envs):
+            self.mj_datas[i].xfrc_applied[:] = self._xfrc[i]
+
+    def _clear_body_forces(self) -> None:
+        for i in np.flatnonzero(self._force_envs):
+            self.mj_datas[i].xfrc_applied[:] = 0.0
+        self._xfrc[self._force_envs] = 0.0
+        self._force_envs[:] = False
+
+    # ------------------------------------------------------------------ state sync
+    def _gather(self, rows: slice | np.ndarray) -> None:
+        """Copy MjData fields of env rows `rows` into the stacked host arrays; a contiguous slice costs one
+        C-level `np.concatenate` per field instead of a Python loop over envs."""
+        for f in _GATHERED_FIELDS:
+            views, out = self._views[f], self._host[f]
+            if isinstance(rows, slice):
+                block = out[rows]
+                np.concatenate(views[rows], axis=0, out=block.reshape(-1, *out.shape[2:]))
+            else:
+                for i in rows:
+                    out[i] = views[i]
+
+    def _sync(self, force_all: bool = False) -> None:
+        """Push setter edits of dirty envs into their MjData and recompute their kinematics."""
+        if force_all:
+            self._dirty[:] = True
+        if not self._dirty.any():
+            return
+        ids = np.flatnonzero(self._dirty)
+        m = self.mj_model
+        qpos, qvel = self._host["qpos"], self._host["qvel"]
+        for i in ids:
+            d = self.mj_datas[i]
+            d.qpos[:] = qpos[i]
+            d.qvel[:] = qvel[i]
+            if m.nmocap:
+                d.mocap_pos[:] = self._mocap_pos[i]
+                d.mocap_quat[:] = self._mocap_quat[i]
+            _update_kinematics(m, d)
+        self._dirty[:] = False
+        self._gather(ids)
+        self._refresh(ids, contacts=False)
+
+    def _refresh(self, rows: slice | np.ndarray, contacts: bool = True) -> None:
+        """Recompute every object's state rows (a slice or env indices) from the stacked host arrays.
+
+        Plain numpy on purpose: torch ops on [N, ...] tensors wake torch's OpenMP workers, which then
+        spin on the cores the MuJoCo worker threads need for the next step (measured: -35% at 64 envs)."""
+        h = {f: a[rows] for f, a in self._host.items()}  # views for a slice, copies for indices
+        for lay, st in zip(self._layouts, self._states, strict=True):
+            _refresh_obj(lay, st.host, h, rows, contacts)
+            st.upload(rows)
+
+    # ------------------------------------------------------------------ getters
+    def _state(self, obj_id: int) -> _ObjState:
+        self._sync()
+        return self._states[obj_id]
+
+    def get_root_pos(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["root_pos"]
+
+    def get_root_rot(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["root_rot"]
+
+    def get_root_vel(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["root_vel"]
+
+    def get_root_ang_vel(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["root_ang_vel"]
+
+    def get_dof_pos(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["dof_pos"]
+
+    def get_dof_vel(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["dof_vel"]
+
+    def get_dof_forces(self, obj_id: int) -> torch.Tensor:
+        """[N, D] actuator forces of the last substep, read from MjData at this call (not a live view)."""
+        st, lay = self._state(obj_id), self._layouts[obj_id]
+        if len(lay.act_ids):
+            st.host["dof_forces"][:] = np.stack([d.actuator_force[lay.act_ids] for d in self.mj_datas])
+            st.upload(slice(None), ("dof_forces",))
+        return st.tensors["dof_forces"]
+
+    def get_body_pos(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["body_pos"]
+
+    def get_body_rot(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["body_rot"]
+
+    def get_body_vel(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["body_vel"]
+
+    def get_body_ang_vel(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["body_ang_vel"]
+
+    def get_contact_forces(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["contact_forces"]
+
+    def get_ground_contact_forces(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["ground_contact_forces"]
+
+    # ------------------------------------------------------------------ setters
+    def set_root_pos(self, env_ids: EnvIds, obj_id: int, root_pos: torch.Tensor | float) -> None:
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        pos = _rows(root_pos, len(ids), 3)
+        if lay.root_qpos >= 0:
+            self._host["qpos"][ids, lay.root_qpos : lay.root_qpos + 3] = pos
+        else:
+            self._mocap_pos[ids, lay.mocap_id] = pos
+        self._dirty[ids] = True
+
+    def set_root_rot(self, env_ids: EnvIds, obj_id: int, root_rot: torch.Tensor | float) -> None:
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        rot = _rows(root_rot, len(ids), 4)
+        wxyz = rot[:, [3, 0, 1, 2]] / np.linalg.norm(rot, axis=-1, keepdims=True)
+        if lay.root_qpos >= 0:
+            vel, ang_vel = self._root_vel_world(ids, lay)  # keep the world-frame velocities
+            self._host["qpos"][ids, lay.root_qpos + 3 : lay.root_qpos + 7] = wxyz
+            self._write_root_vel(ids, lay, vel, ang_vel)
+        else:
+            self._mocap_quat[ids, lay.mocap_id] = wxyz
+        self._dirty[ids] = True
+
+    def set_root_vel(self, env_ids: EnvIds, obj_id: int, root_vel: torch.Tensor | float) -> None:
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        if lay.root_qpos < 0:
+            return  # a fixed root does not move
+        _, ang_vel = self._root_vel_world(ids, lay)
+        self._write_root_vel(ids, lay, _rows(root_vel, len(ids), 3), ang_vel)
+        self._dirty[ids] = True
+
+    def set_root_ang_vel(self, env_ids: EnvIds, obj_id: int, root_ang_vel: torch.Tensor | float) -> None:
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        if lay.root_qpos < 0:
+            return
+        vel, _ = self._root_vel_world(ids, lay)
+        self._write_root_vel(ids, lay, vel, _rows(root_ang_vel, len(ids), 3))
+        self._dirty[ids] = True
+
+    def set_dof_pos(self, env_ids: EnvIds, obj_id: int, dof_pos: torch.Tensor | float) -> None:
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        dof = _rows(dof_pos, len(ids), lay.num_dofs)
+        qpos = self._host["qpos"]
+        if len(lay.hinge_cols):
+            qpos[np.ix_(ids, lay.hinge_qpos)] = dof[:, lay.hinge_cols]
+        if len(lay.ball_cols):
+            quat = tu.quat_to_wxyz(tu.exp_map_to_quat(torch.from_numpy(dof[:, lay.ball_cols])))  # [n, K, 4]
+            qpos[ids[:, None, None], lay.ball_qpos[None]] = quat.numpy()
+        self._dirty[ids] = True
+
+    def set_dof_vel(self, env_ids: EnvIds, obj_id: int, dof_vel: torch.Tensor | float) -> None:
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        self._host["qvel"][np.ix_(ids, lay.dof_qvel)] = _rows(dof_vel, len(ids), lay.num_dofs)
+        self._dirty[ids] = True
+
+    def _set_body_buffer(self, env_ids: EnvIds, buf: torch.Tensor, value: torch.Tensor | float) -> None:
+        self._sync()  # physics-derived rows first, so that this overwrite is what the next getter returns
+        ids = torch.as_tensor(self._env_ids(env_ids), dtype=torch.long, device=buf.device)
+        buf[ids] = torch.as_tensor(value, dtype=buf.dtype, device=buf.device).expand(len(ids), *buf.shape[1:])
+
+    def set_body_pos(self, env_ids: EnvIds, obj_id: int, body_pos: torch.Tensor | float) -> None:
+        self._set_body_buffer(env_ids, self._states[obj_id].tensors["body_pos"], body_pos)
+
+    def set_body_rot(self, env_ids: EnvIds, obj_id: int, body_rot: torch.Tensor | float) -> None:
+        self._set_body_buffer(env_ids, self._states[obj_id].tensors["body_rot"], body_rot)
+
+    def set_body_vel(self, env_ids: EnvIds, obj_id: int, body_vel: torch.Tensor | float) -> None:
+        self._set_body_buffer(env_ids, self._states[obj_id].tensors["body_vel"], body_vel)
+
+    def set_body_ang_vel(self, env_ids: EnvIds, obj_id: int, body_ang_vel: torch.Tensor | float) -> None:
+        self._set_body_buffer(env_ids, self._states[obj_id].tensors["body_ang_vel"], body_ang_vel)
+
+    def set_body_forces(self, env_ids: EnvIds, obj_id: int, body_id: int, forces: torch.Tensor | float) -> None:
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        self._xfrc[ids, lay.body_ids[body_id], :3] = _rows(forces, len(ids), 3)
+        self._force_envs[ids] = True
+
+    def _root_vel_world(self, ids: np.ndarray, lay: _ObjLayout) -> tuple[np.ndarray, np.ndarray]:
+        """Current root (COM velocity, angular velocity), world frame, [n, 3] each, from the stacked qvel."""
+        q = torch.from_numpy(self._host["qpos"][ids, lay.root_qpos + 3 : lay.root_qpos + 7])
+        qv = torch.from_numpy(self._host["qvel"][ids, lay.root_qvel : lay.root_qvel + 6])
+        rot = tu.quat_normalize(tu.quat_from_wxyz(q))
+        ang_vel = tu.quat_rotate(rot, qv[:, 3:])
+        com = tu.quat_rotate(rot, torch.from_numpy(lay.root_ipos).expand_as(ang_vel))
+        vel = qv[:, :3] + torch.cross(ang_vel, com, dim=-1)
+        return vel.numpy(), ang_vel.numpy()
+
+    def _write_root_vel(self, ids: np.ndarray, lay: _ObjLayout, vel: np.ndarray, ang_vel: np.ndarray) -> None:
+        """Store world-frame (COM velocity, angular velocity) [n, 3] as MuJoCo free-joint qvel."""
+        q = torch.from_numpy(self._host["qpos"][ids, lay.root_qpos + 3 : lay.root_qpos + 7])
+        rot = tu.quat_normalize(tu.quat_from_wxyz(q))
+        w = torch.from_numpy(np.ascontiguousarray(ang_vel, dtype=np.float64))
+        com = tu.quat_rotate(rot, torch.from_numpy(lay.root_ipos).expand_as(w))
+        origin_vel = torch.from_numpy(np.ascontiguousarray(vel, dtype=np.float64)) - torch.cross(w, com, dim=-1)
+        qvel = self._host["qvel"]
+        qvel[ids, lay.root_qvel : lay.root_qvel + 3] = origin_vel.numpy()
+        qvel[ids, lay.root_qvel + 3 : lay.root_qvel + 6] = tu.quat_rotate_inverse(rot, w).numpy()
+
+    def _env_ids(self, env_ids: EnvIds) -> np.ndarray:
+        if env_ids is None:
+            return np.arange(self._num_envs)
+        return np.asarray(_to_numpy(env_ids), dtype=np.int64).reshape(-1)
+
+    # ------------------------------------------------------------------ queries
+    def get_sim_time(self) -> float:
+        return self._sim_time
+
+    def get_gravity(self) -> np.ndarray:
+        return self.mj_model.opt.gravity.copy()
+
+    def get_objs_per_env(self) -> int:
+        return len(self._env_objs[0]) if self._env_objs else 0
+
+    def get_obj_type(self, obj_id: int) -> ObjType:
+        return self._env_objs[0][obj_id].obj_type
+
+    def get_obj_num_dofs(self, obj_id: int) -> int:
+        return self._layouts[obj_id].num_dofs
+
+    def get_obj_num_bodies(self, obj_id: int) -> int:
+        return self._layouts[obj_id].num_bodies
+
+    def get_obj_body_names(self, obj_id: int) -> list[str]:
+        return self._layouts[obj_id].kin.get_body_names()
+
+    def find_obj_body_id(self, obj_id: int, name: str) -> int:
+        return self._layouts[obj_id].kin.get_body_id(name)
+
+    def get_obj_torque_limits(self, env_id: int, obj_id: int) -> np.ndarray:
+        return self._layouts[obj_id].kin.dof_array("torque_limit")
+
+    def get_obj_dof_limits(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
+        low, high = self._layouts[obj_id].kin.dof_limits()
+        return low.copy(), high.copy()
+
+    def get_obj_pd_gains(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
+        lay = self._layouts[obj_id]
+        return lay.kp.copy(), lay.kd.copy()
+
+    def calc_obj_mass(self, env_id: int, obj_id: int) -> float:
+        return float(self.mj_model.body_mass[self._layouts[obj_id].body_ids].sum())
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def _sensor_columns(m: mujoco.MjModel, name: str) -> list[int]:
+    s = m.sensor(name)
+    return list(range(int(s.adr[0]), int(s.adr[0]) + int(s.dim[0])))
+
+
+def _update_kinematics(m: mujoco.MjModel, d: mujoco.MjData) -> None:
+    """Body poses, COM frames and velocities for the current qpos/qvel (contacts are left as they are)."""
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_comPos(m, d)
+    mujoco.mj_comVel(m, d)
+
+
+def _refresh_obj(
+    lay: _ObjLayout, out: dict[str, np.ndarray], h: dict[str, np.ndarray], rows: slice | np.ndarray, contacts: bool
+) -> None:
+    """Write one object's state rows `rows` of `out` (see `_ObjState`) from stacked MjData fields h[field]
+    [n, ...] (float64, already restricted to those rows)."""
+    b = lay.body_ids
+    body_pos = h["xpos"][:, b]  # [n, B, 3]
+    body_rot = h["xquat"][:, b][..., [1, 2, 3, 0]]  # w-first → xyzw
+    cvel = h["cvel"][:, b]  # [n, B, 6]: (angular, linear at the root's subtree COM), world frame
+    ang_vel = cvel[..., :3]
+    arm = h["xipos"][:, b] - h["subtree_com"][:, b[:1]]  # body COM relative to that point
+    lin_vel = cvel[..., 3:] + np.cross(ang_vel, arm)
+    out["body_pos"][rows] = body_pos
+    out["body_rot"][rows] = body_rot
+    out["body_vel"][rows] = lin_vel
+    out["body_ang_vel"][rows] = ang_vel
+
+    if lay.num_dofs:
+        qpos = h["qpos"]
+        dof_pos = np.empty((qpos.shape[0], lay.num_dofs))
+        dof_pos[:, lay.hinge_cols] = qpos[:, lay.hinge_qpos]
+        dof_pos[:, lay.ball_cols] = _quat_wxyz_to_exp_map(qpos[:, lay.ball_qpos])
+        out["dof_pos"][rows] = dof_pos
+        out["dof_vel"][rows] = h["qvel"][:, lay.dof_qvel]
+
+    if contacts and len(lay.contact_adr):
+        n, nb = body_pos.shape[0], lay.num_bodies
+        # The sensors report the force their body exerts on the others: negate for the force on the body.
+        out["contact_forces"][rows] = 0.0 - h["sensordata"][:, lay.contact_adr].reshape(n, nb, 3)
+        out["ground_contact_forces"][rows] = 0.0 - h["sensordata"][:, lay.ground_adr].reshape(n, nb, 3)
+
+
+def _quat_wxyz_to_exp_map(q: np.ndarray) -> np.ndarray:
+    """MuJoCo quaternions [..., 4] (w first) to exp-maps [..., 3]: numpy twin of
+    `torch_util.quat_to_exp_map` (normalised, w >= 0 so the angle is in [0, π], zero near identity)."""
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., :1] < 0, -q, q)
+    v = q[..., 1:]
+    sin_half = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(sin_half, q[..., :1])
+    small = sin_half <= 1e-5
+    return np.where(small, 0.0, v * (angle / np.where(small, 1.0, sin_half)))
+
+
+def _to_numpy(x: object) -> np.ndarray:
+    if isinstance(x, torch.Tensor):
+        return x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def _rows(value: torch.Tensor | float, n: int, width: int) -> np.ndarray:
+    """Broadcast a setter value to a float64 [n, width] array."""
+    return np.array(np.broadcast_to(_to_numpy(value).astype(np.float64), (n, width)))

@@ -1,0 +1,78 @@
+"""Observation features of a character, as pure functions of batched state (spec §5.2, §5.3).
+
+Shapes: N envs, J bodies (root included), D DoFs, K key bodies.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from mimickit.util import torch_util as tu
+
+
+def compute_char_obs(
+    root_pos: torch.Tensor,
+    root_rot: torch.Tensor,
+    root_vel: torch.Tensor,
+    root_ang_vel: torch.Tensor,
+    joint_rot: torch.Tensor,
+    dof_vel: torch.Tensor,
+    key_pos: torch.Tensor,
+    global_obs: bool,
+    root_height_obs: bool,
+) -> torch.Tensor:
+    """[N, (1) + 6 + 3 + 3 + 6(J-1) + D + 3K] from root [N,3|4], joint_rot [N,J-1,4], dof_vel [N,D],
+    key_pos [N,K,3]. Local observations are expressed in the root's heading frame."""
+    parts = []
+    if root_height_obs:
+        parts.append(root_pos[..., 2:3])
+    if global_obs:
+        rot, vel, ang_vel = root_rot, root_vel, root_ang_vel
+        key = key_pos - root_pos.unsqueeze(-2)
+    else:
+        heading_inv = tu.calc_heading_quat_inv(root_rot)
+        rot = tu.quat_mul(heading_inv, root_rot)
+        vel = tu.quat_rotate(heading_inv, root_vel)
+        ang_vel = tu.quat_rotate(heading_inv, root_ang_vel)
+        key = tu.quat_rotate(heading_inv.unsqueeze(-2), key_pos - root_pos.unsqueeze(-2))
+    parts += [tu.quat_to_tan_norm(rot), vel, ang_vel]
+    parts.append(tu.quat_to_tan_norm(joint_rot).flatten(-2))
+    parts.append(dof_vel)
+    parts.append(key.flatten(-2))
+    return torch.cat(parts, dim=-1)
+
+
+def compute_phase_obs(phase: torch.Tensor, num_encoding: int) -> torch.Tensor:
+    """[N, 1 + 2K]: the phase and its sin/cos at frequencies 2π·2^k."""
+    parts = [phase.unsqueeze(-1)]
+    if num_encoding > 0:
+        k = 2.0 * torch.pi * (2.0 ** torch.arange(num_encoding, device=phase.device, dtype=phase.dtype))
+        angle = phase.unsqueeze(-1) * k
+        parts += [torch.sin(angle), torch.cos(angle)]
+    return torch.cat(parts, dim=-1)
+
+
+def compute_tar_obs(
+    ref_root_pos: torch.Tensor,
+    ref_root_rot: torch.Tensor,
+    tar_root_pos: torch.Tensor,
+    tar_root_rot: torch.Tensor,
+    tar_joint_rot: torch.Tensor,
+    tar_key_pos: torch.Tensor,
+    global_obs: bool,
+    root_height_obs: bool,
+) -> torch.Tensor:
+    """Target frames S steps ahead: tar_root_pos [N,S,3], tar_root_rot [N,S,4], tar_joint_rot [N,S,J-1,4],
+    tar_key_pos [N,S,K,3] relative to the reference root ref_root_pos [N,3] / ref_root_rot [N,4] →
+    [N, S·(3|2 + 6 + 6(J-1) + 3K)]."""
+    rel = tar_root_pos - ref_root_pos.unsqueeze(-2)
+    key = tar_key_pos - tar_root_pos.unsqueeze(-2)
+    rot = tar_root_rot
+    if not global_obs:
+        heading_inv = tu.calc_heading_quat_inv(ref_root_rot).unsqueeze(-2)  # [N,1,4]
+        rel = tu.quat_rotate(heading_inv, rel)
+        rot = tu.quat_mul(heading_inv.expand_as(rot), rot)
+        key = tu.quat_rotate(heading_inv.unsqueeze(-2), key)
+    rel = torch.cat([rel[..., :2], tar_root_pos[..., 2:3]], dim=-1) if root_height_obs else rel[..., :2]
+    per_step = [rel, tu.quat_to_tan_norm(rot), tu.quat_to_tan_norm(tar_joint_rot).flatten(-2), key.flatten(-2)]
+    return torch.cat(per_step, dim=-1).flatten(-2)

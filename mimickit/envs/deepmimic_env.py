@@ -1,0 +1,270 @@
+"""DeepMimicEnv: track a reference clip (spec §5.3).
+
+Reference-state initialisation from the MotionLib, observations with target frames ahead, the
+five-term imitation reward (`deepmimic_rewards`), early termination on ground contact of non-contact
+bodies and on pose deviation. `info["reward_terms"]` holds each unweighted term [N] and
+`info["tracking"]` the tracking errors [N].
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from mimickit.anim.motion import LoopMode
+from mimickit.anim.motion_lib import MotionLib
+from mimickit.engines.engine import ObjType
+from mimickit.envs.base_env import DoneFlags, EnvMode
+from mimickit.envs.char_env import CharEnv
+from mimickit.envs.char_obs import compute_phase_obs, compute_tar_obs
+from mimickit.envs.deepmimic_rewards import TERM_NAMES, compute_reward_terms, tracking_errors
+from mimickit.envs.env_config import DeepMimicEnvConfig
+from mimickit.util import torch_util as tu
+from mimickit.util.errors import MimicKitError
+
+REF_CHAR_COLOR = (0.3, 0.5, 0.1)
+CONTACT_FORCE_THRESHOLD = 0.1  # N: any larger ground force on a non-contact body ends the episode
+
+
+class DeepMimicEnv(CharEnv):
+    config: DeepMimicEnvConfig
+
+    # ----------------------------------------------------------- construction
+    def _build_envs(self, config: DeepMimicEnvConfig, num_envs: int) -> None:
+        self._enable_ref_char = self._visualize and config.visualize_ref_char
+        super()._build_envs(config, num_envs)
+        self._motion_lib = MotionLib(config.motion_file, self._char_model, self.device)
+
+    def _build_env(self, env_id: int, config: DeepMimicEnvConfig) -> None:
+        super()._build_env(env_id, config)
+        if self._enable_ref_char:
+            self._ref_char_id = self._engine.create_obj(
+                env_id=env_id,
+                obj_type=ObjType.articulated,
+                asset_file=str(self._char_file),
+                name="reference",
+                is_visual=True,
+                enable_self_collisions=False,
+                disable_motors=True,
+                color=REF_CHAR_COLOR,
+            )
+
+    def _build_sim_tensors(self, config: DeepMimicEnvConfig) -> None:
+        super()._build_sim_tensors(config)
+        n, dev, char = self.num_envs, self.device, self._char_model
+        self._track_root = config.enable_tar_obs and config.global_obs
+        self._motion_ids = torch.zeros(n, dtype=torch.long, device=dev)
+        self._motion_time_offsets = torch.zeros(n, device=dev)
+        joint_err_w = config.joint_err_w or [1.0] * (char.get_num_joints() - 1)
+        if len(joint_err_w) != char.get_num_joints() - 1:
+            raise MimicKitError(
+                f"joint_err_w has {len(joint_err_w)} values; {self._char_file} has {char.get_num_joints() - 1} joints"
+            )
+        self._joint_err_w = torch.tensor(joint_err_w, dtype=torch.float32, device=dev)
+        self._dof_err_w = self._joint_err_w[torch.as_tensor(char.dof_joint_ids(), device=dev)]
+        contact = [char.get_body_id(b) for b in config.contact_bodies]
+        self._non_contact = torch.ones(char.get_num_joints(), dtype=torch.bool, device=dev)
+        self._non_contact[contact] = False
+        self._reward_weights = {t: getattr(config, f"reward_{t}_w") for t in TERM_NAMES}
+        self._reward_scales = {t: getattr(config, f"reward_{t}_scale") for t in TERM_NAMES}
+        steps = config.tar_obs_steps if config.enable_tar_obs else []
+        self._ref_steps = torch.tensor([0, *steps], dtype=torch.float32, device=dev)
+        self._ref: dict[str, torch.Tensor] = {}
+        self._tar: dict[str, torch.Tensor] = {}
+        self._eval_ref(torch.arange(n, device=dev), self._motion_time_offsets)
+        self._ref_char_offset = torch.tensor(config.ref_char_offset, dtype=torch.float32, device=dev)
+
+    # ---------------------------------------------------------------- public
+    @property
+    def motion_lib(self) -> MotionLib:
+        return self._motion_lib
+
+    @property
+    def reward_weights(self) -> dict[str, float]:
+        return dict(self._reward_weights)
+
+    def get_motion_time(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
+        t = self._time_buf + self._motion_time_offsets
+        return t if env_ids is None else t[env_ids]
+
+    def get_ref_state(self) -> dict[str, torch.Tensor]:
+        """The reference at the current motion time: root_pos [N,3], root_rot [N,4], joint_rot [N,J-1,4],
+        dof_pos [N,D], body_pos [N,J,3], body_rot [N,J,4], velocities."""
+        return self._ref
+
+    def set_mode(self, mode: EnvMode) -> None:
+        super().set_mode(mode)
+        self._tracking_sum: dict[str, float] = {}
+        self._tracking_count = 0
+
+    def record_diagnostics(self) -> dict[str, float]:
+        if not self.config.log_tracking_error or not getattr(self, "_tracking_count", 0):
+            return {}
+        return {k: v / self._tracking_count for k, v in self._tracking_sum.items()}
+
+    # ------------------------------------------------------------- reference
+    def _eval_ref(self, env_ids: torch.Tensor, times: torch.Tensor) -> None:
+        """Evaluate the clip at `times` [n] and at the target-observation steps ahead, with one MotionLib
+        call and one FK for all of them, into the reference buffers [N, ...] and target buffers [N, S, ...]."""
+        n, s = len(env_ids), len(self._ref_steps)
+        all_times = (times.unsqueeze(-1) + self._engine.get_timestep() * self._ref_steps).flatten()
+        f = self._motion_lib.calc_motion_frame(self._motion_ids[env_ids].repeat_interleave(s), all_times)
+        body_pos, body_rot = self._char_model.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
+        view = lambda x: x.view(n, s, *x.shape[1:])  # noqa: E731
+        now = {
+            "root_pos": f.root_pos, "root_rot": f.root_rot, "root_vel": f.root_vel, "root_ang_vel": f.root_ang_vel,
+            "joint_rot": f.joint_rot, "dof_vel": f.dof_vel, "body_pos": body_pos, "body_rot": body_rot,
+        }  # fmt: skip
+        now = {k: view(v)[:, 0] for k, v in now.items()}
+        now["dof_pos"] = self._char_model.rot_to_dof(now["joint_rot"])
+        ahead = {
+            "root_pos": view(f.root_pos)[:, 1:], "root_rot": view(f.root_rot)[:, 1:],
+            "joint_rot": view(f.joint_rot)[:, 1:], "key_pos": view(body_pos)[:, 1:, self._key_body_ids],
+        }  # fmt: skip
+        for buf, values in ((self._ref, now), (self._tar, ahead)):
+            for k, v in values.items():
+                if k not in buf:
+                    buf[k] = torch.zeros(self.num_envs, *v.shape[1:], device=self.device)
+                buf[k][env_ids] = v
+
+    def _update_ref(self, env_ids: torch.Tensor | None = None) -> None:
+        ids = torch.arange(self.num_envs, device=self.device) if env_ids is None else env_ids
+        self._eval_ref(ids, self.get_motion_time(ids))
+        if self._enable_ref_char:
+            self._pose_ref_char(ids)
+
+    def _pose_ref_char(self, env_ids: torch.Tensor) -> None:
+        e, c = self._engine, self._ref_char_id
+        e.set_root_pos(env_ids, c, self._ref["root_pos"][env_ids] + self._ref_char_offset)
+        e.set_root_rot(env_ids, c, self._ref["root_rot"][env_ids])
+        e.set_root_vel(env_ids, c, 0.0)
+        e.set_root_ang_vel(env_ids, c, 0.0)
+        e.set_dof_pos(env_ids, c, self._ref["dof_pos"][env_ids])
+        e.set_dof_vel(env_ids, c, 0.0)
+
+    # ---------------------------------------------------------------- resets
+    def _reset_char(self, env_ids: torch.Tensor) -> None:
+        lib = self._motion_lib
+        ids = lib.sample_motions(len(env_ids)).to(self.device)
+        times = lib.sample_time(ids) if self.config.rand_reset else torch.zeros(len(env_ids), device=self.device)
+        self._motion_ids[env_ids] = ids
+        self._motion_time_offsets[env_ids] = times
+        self._eval_ref(env_ids, times)
+        e, c, ref = self._engine, self._char_id, self._ref
+        e.set_root_pos(env_ids, c, ref["root_pos"][env_ids])
+        e.set_root_rot(env_ids, c, ref["root_rot"][env_ids])
+        e.set_root_vel(env_ids, c, ref["root_vel"][env_ids])
+        e.set_root_ang_vel(env_ids, c, ref["root_ang_vel"][env_ids])
+        e.set_dof_pos(env_ids, c, ref["dof_pos"][env_ids])
+        e.set_dof_vel(env_ids, c, ref["dof_vel"][env_ids])
+        if self._enable_ref_char:
+            self._pose_ref_char(env_ids)
+
+    # ---------------------------------------------------------- per step
+    def _update_misc(self) -> None:
+        super()._update_misc()
+        self._update_ref()
+
+    def _compute_obs(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
+        obs = [super()._compute_obs(env_ids)]
+        ids = torch.arange(self.num_envs, device=self.device) if env_ids is None else env_ids
+        if self.config.enable_phase_obs:
+            phase = self._motion_lib.calc_motion_phase(self._motion_ids[ids], self.get_motion_time(ids))
+            obs.append(compute_phase_obs(phase, self.config.num_phase_encoding))
+        if self.config.enable_tar_obs:
+            obs.append(self._compute_tar_obs(ids))
+        return torch.cat(obs, dim=-1)
+
+    def _compute_tar_obs(self, ids: torch.Tensor) -> torch.Tensor:
+        """Target frames from the buffers `_eval_ref` filled for the current motion time."""
+        tar = {k: v[ids] for k, v in self._tar.items()}
+        if self.config.global_obs:
+            ref_pos, ref_rot = self._engine.get_root_pos(self._char_id)[ids], tar["root_rot"][:, 0]
+        else:
+            ref_pos, ref_rot = tar["root_pos"][:, 0], tar["root_rot"][:, 0]
+        return compute_tar_obs(
+            ref_pos, ref_rot, tar["root_pos"], tar["root_rot"], tar["joint_rot"], tar["key_pos"],
+            self.config.global_obs, self.config.root_height_obs,
+        )  # fmt: skip
+
+    def _sim_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        s = self._char_state(env_ids)
+        s["joint_rot"] = self._char_model.dof_to_rot(s["dof_pos"])
+        s["key_pos"] = s["body_pos"][:, self._key_body_ids]
+        return s
+
+    def _update_info(self, env_ids: torch.Tensor | None = None) -> None:
+        sim = self._sim_state(env_ids)
+        ref = self._ref if env_ids is None else {k: v[env_ids] for k, v in self._ref.items()}
+        ref = dict(ref, key_pos=ref["body_pos"][:, self._key_body_ids])
+        terms = compute_reward_terms(
+            sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
+            self.config.root_height_obs,
+        )  # fmt: skip
+        tracking = tracking_errors(sim, ref)
+        if env_ids is None:
+            self._last_sim = sim
+        self._store_info("reward_terms", terms, env_ids)
+        self._store_info("tracking", tracking, env_ids)
+        if self._mode == EnvMode.TEST and self.config.log_tracking_error:
+            self._record_tracking(tracking)
+
+    def _store_info(self, key: str, values: dict[str, torch.Tensor], env_ids: torch.Tensor | None) -> None:
+        """Write per-env values [n] into the persistent info buffers [N] (only the rows of env_ids)."""
+        if key not in self._info:
+            self._info[key] = {k: torch.zeros(self.num_envs, device=self.device) for k in values}
+        buf = self._info[key]
+        for k, v in values.items():
+            if env_ids is None:
+                buf[k][:] = v
+            else:
+                buf[k][env_ids] = v
+
+    def _record_tracking(self, tracking: dict[str, torch.Tensor]) -> None:
+        if not hasattr(self, "_tracking_sum"):
+            self._tracking_sum, self._tracking_count = {}, 0
+        for k, v in tracking.items():
+            self._tracking_sum[k] = self._tracking_sum.get(k, 0.0) + float(v.sum())
+        self._tracking_count += len(next(iter(tracking.values())))
+
+    def _update_reward(self) -> None:
+        terms = self._info["reward_terms"]
+        self._reward_buf[:] = sum(self._reward_weights[k] * terms[k] for k in TERM_NAMES)
+
+    def _update_done(self) -> None:
+        super()._update_done()
+        done = self._done_buf
+        motion_time = self.get_motion_time()
+        clamp = self._motion_lib.get_motion_loop_mode(self._motion_ids) != LoopMode.WRAP
+        finished = clamp & (motion_time >= self._motion_lib.get_motion_length(self._motion_ids))
+        done[finished] = DoneFlags.SUCC
+        if self.config.enable_early_termination:
+            done[self._fallen() | self._pose_failed()] = DoneFlags.FAIL
+
+    def _fallen(self) -> torch.Tensor:
+        if not self.config.contact_bodies:
+            return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        forces = self._engine.get_ground_contact_forces(self._char_id)[:, self._non_contact]
+        return (forces.abs() > CONTACT_FORCE_THRESHOLD).any(-1).any(-1)
+
+    def _pose_failed(self) -> torch.Tensor:
+        if not self.config.pose_termination:
+            return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        d2 = self.config.pose_termination_dist**2
+        sim_pos, ref_pos = self._last_sim["body_pos"], self._ref["body_pos"]
+        if self.config.global_obs and self._track_root:
+            root_far = ((sim_pos[:, 0] - ref_pos[:, 0]) ** 2).sum(-1) > d2
+            diff = sim_pos - ref_pos
+        else:
+            sim_rel = sim_pos[:, 1:] - sim_pos[:, :1]
+            ref_rel = ref_pos[:, 1:] - ref_pos[:, :1]
+            if not self.config.global_obs:
+                sim_rel = tu.quat_rotate_inverse(self._last_sim["root_rot"].unsqueeze(1), sim_rel)
+                ref_rel = tu.quat_rotate_inverse(self._ref["root_rot"].unsqueeze(1), ref_rel)
+            root_far = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+            diff = sim_rel - ref_rel
+        return root_far | ((diff * diff).sum(-1).max(-1).values > d2)
+
+    def info_snapshot(self) -> dict[str, Any]:
+        return self._info

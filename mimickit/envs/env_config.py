@@ -1,0 +1,129 @@
+"""Typed configs of the environments, and loading an env yaml (+ engine yaml) the reference's way.
+
+An env yaml is `env_name: ...`, the env's fields (under `env:` as in MimicKit's files, or at the top
+level), and an optional `engine:` block whose entries override the engine config (spec §1.3).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, model_validator
+
+from mimickit.engines.engine import EngineConfig
+from mimickit.util.config import ConfigModel, load_yaml, parse_config
+from mimickit.util.errors import MimicKitError
+
+# Engine keys that only Isaac Gym / Isaac Lab read; MimicKit env yamls may carry them.
+_ISAAC_ONLY_KEYS = {"sim", "plane", "physx"}
+# Keys that describe the task rather than one engine's physics: kept when an env yaml's engine block
+# names another engine than the one chosen.
+_PORTABLE_ENGINE_KEYS = {"control_mode", "control_freq", "env_spacing", "ground_contact_height"}
+
+
+class SimEnvConfig(ConfigModel):
+    env_name: str
+    episode_length: float = Field(gt=0, description="seconds per episode")
+
+
+class CharEnvConfig(SimEnvConfig):
+    char_file: str
+    global_obs: bool
+    root_height_obs: bool = True
+    zero_center_action: bool = False
+    init_pose: list[float] | None = None
+    key_bodies: list[str] = []
+    camera_mode: str = "still"
+
+
+class DeepMimicEnvConfig(CharEnvConfig):
+    motion_file: str
+    enable_early_termination: bool
+    ref_char_offset: list[float] = Field(min_length=3, max_length=3)
+    num_phase_encoding: int = 0
+    pose_termination: bool = False
+    pose_termination_dist: float = 1.0
+    enable_phase_obs: bool = True
+    enable_tar_obs: bool = False
+    tar_obs_steps: list[int] = [1]
+    rand_reset: bool = True
+    log_tracking_error: bool = False
+    visualize_ref_char: bool = True
+    contact_bodies: list[str] = []
+    joint_err_w: list[float] | None = None
+    reward_pose_w: float
+    reward_vel_w: float
+    reward_root_pose_w: float
+    reward_root_vel_w: float
+    reward_key_pos_w: float
+    reward_pose_scale: float
+    reward_vel_scale: float
+    reward_root_pose_scale: float
+    reward_root_vel_scale: float
+    reward_key_pos_scale: float
+
+    @model_validator(mode="after")
+    def _key_bodies_needed(self) -> DeepMimicEnvConfig:
+        if not self.key_bodies:
+            raise ValueError("key_bodies must name at least one body (the key-position reward needs it)")
+        return self
+
+
+class ViewMotionEnvConfig(CharEnvConfig):
+    motion_file: str
+    global_obs: bool = False
+
+
+class CharDofTestEnvConfig(CharEnvConfig):
+    global_obs: bool = False
+
+
+ENV_CONFIGS: dict[str, type[CharEnvConfig]] = {
+    "char": CharEnvConfig,
+    "deepmimic": DeepMimicEnvConfig,
+    "view_motion": ViewMotionEnvConfig,
+    "char_dof_test": CharDofTestEnvConfig,
+}
+
+
+def load_env_configs(env_file: str | Path, engine_file: str | Path | None) -> tuple[CharEnvConfig, EngineConfig]:
+    """Read and validate an env yaml and an engine yaml (the env's `engine:` block merged in)."""
+    raw = load_yaml(env_file)
+    env_name = raw.get("env_name")
+    if env_name not in ENV_CONFIGS:
+        raise MimicKitError(f"{env_file}: env_name {env_name!r} is not supported (supported: {', '.join(ENV_CONFIGS)})")
+    fields = (
+        dict(raw["env"])
+        if isinstance(raw.get("env"), dict)
+        else {k: v for k, v in raw.items() if k not in ("env_name", "engine")}
+    )
+    fields["env_name"] = env_name
+    env_cfg = parse_config(ENV_CONFIGS[env_name], fields, env_file)
+    engine_raw = load_yaml(engine_file) if engine_file else {}
+    engine_raw = merge_engine_overrides(engine_raw, raw.get("engine") or {}, env_file)
+    if not engine_raw:
+        raise MimicKitError(f"{env_file}: no engine config given (--engine_config) and no engine: block")
+    source = engine_file or env_file
+    return env_cfg, parse_config(EngineConfig, engine_raw, source)
+
+
+def merge_engine_overrides(engine: dict[str, Any], override: dict[str, Any], env_file: str | Path) -> dict[str, Any]:
+    if not engine:
+        return {k: v for k, v in override.items() if k not in _ISAAC_ONLY_KEYS}
+    merged = dict(engine)
+    other_engine = "engine_name" in override and override["engine_name"] != engine.get("engine_name")
+    dropped = []
+    for key, val in override.items():
+        if key in _ISAAC_ONLY_KEYS or (other_engine and key not in _PORTABLE_ENGINE_KEYS):
+            dropped.append(key)
+            continue
+        merged[key] = val
+    if dropped:
+        warnings.warn(
+            f"{env_file}: engine keys {dropped} belong to engine {override.get('engine_name', 'isaac')!r} "
+            f"and are ignored for {engine.get('engine_name')!r}",
+            stacklevel=2,
+        )
+    return merged

@@ -1,0 +1,413 @@
+"""The MuJoCo engine: model build, state conventions, PD control, contacts, resets and config errors."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from mimickit.anim.mjcf_char_model import load_char_model
+from mimickit.engines.engine import ControlMode, EngineConfig, ObjType
+from mimickit.engines.engine_builder import build_engine
+from mimickit.engines.mujoco_engine import MujocoEngine
+from mimickit.util import torch_util as tu
+from mimickit.util.config import load_config
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import PROJECT_DATA_DIR
+from tests import conftest
+from tests.conftest import PROJECT_HUMANOID
+
+INIT_ROOT_POS = (0.0, 0.0, 0.882416)
+R_SHOULDER, L_SHOULDER = slice(6, 9), slice(10, 13)  # exp-map columns in the humanoid DoF layout
+
+
+@pytest.fixture(scope="module")
+def humanoid_xml() -> Path:
+    """The project's humanoid if present, else MimicKit's from the reference data."""
+    if PROJECT_HUMANOID.is_file():
+        return PROJECT_HUMANOID
+    data = conftest.test_data_dir()
+    if data is None:
+        pytest.skip("no humanoid MJCF: data/assets/humanoid/humanoid.xml is missing and MIMICKIT_TEST_DATA is unset")
+    return data / "assets" / "humanoid" / "humanoid.xml"
+
+
+def make_engine(xml: Path, num_envs: int = 1, mode: str = "pos", objs: tuple[dict, ...] = ({},)) -> MujocoEngine:
+    """An initialized engine (30 Hz control, 240 Hz sim); `objs` are extra create_obj kwargs per object."""
+    cfg = EngineConfig(engine_name="mujoco", control_mode=mode, control_freq=30, sim_freq=240, env_spacing=5)
+    engine = MujocoEngine(cfg, num_envs, "cpu")
+    for _ in range(num_envs):
+        env_id = engine.create_env()
+        for i, kwargs in enumerate(objs):
+            args = {"start_pos": INIT_ROOT_POS, **kwargs}
+            engine.create_obj(env_id, ObjType.articulated, str(args.pop("asset", xml)), f"obj{i}", **args)
+    engine.initialize_sim()
+    return engine
+
+
+def init_dof(n: int = 1) -> torch.Tensor:
+    """[n, 28] the standing init pose: arms down, everything else zero."""
+    dof = torch.zeros(n, 28)
+    dof[:, 6], dof[:, 10] = 1.5708, -1.5708
+    return dof
+
+
+def random_dof(engine: MujocoEngine, n: int, gen: torch.Generator, margin: float = 0.9) -> torch.Tensor:
+    """[n, D] DoFs inside the limits; spherical exp-maps kept below π in norm so that they round-trip."""
+    low, high = (torch.from_numpy(x).float() for x in engine.get_obj_dof_limits(0, 0))
+    mid, half = (low + high) / 2, (high - low) / 2 * margin
+    dof = mid + half * (2 * torch.rand(n, len(low), generator=gen) - 1)
+    kin = engine._layouts[0].kin
+    for j in kin.joints[1:]:
+        if j.dof_dim == 3:
+            e = dof[:, j.dof_idx : j.dof_idx + 3]
+            norm = e.norm(dim=-1, keepdim=True)
+            dof[:, j.dof_idx : j.dof_idx + 3] = torch.where(norm > 2.8, e * 2.8 / norm, e)
+    return dof
+
+
+def random_quat(n: int, gen: torch.Generator) -> torch.Tensor:
+    return tu.quat_normalize(torch.randn(n, 4, generator=gen))
+
+
+def assert_quat_close(a: torch.Tensor, b: torch.Tensor, atol: float) -> None:
+    """Quaternions equal up to sign (q and -q are the same rotation)."""
+    err = torch.minimum((a - b).abs().amax(-1), (a + b).abs().amax(-1))
+    assert err.max().item() < atol, err.max().item()
+
+
+# ---------------------------------------------------------------------------------------------- model
+def test_model_matches_kinematic_character(humanoid_xml):
+    engine = make_engine(humanoid_xml)
+    kin = load_char_model(humanoid_xml)
+    assert engine.get_obj_body_names(0) == kin.get_body_names()
+    assert engine.get_obj_num_bodies(0) == 15 and engine.get_obj_num_dofs(0) == 28
+    assert engine.find_obj_body_id(0, "left_foot") == 14
+    assert engine.calc_obj_mass(0, 0) == pytest.approx(50.05, rel=0.02)
+    low, high = engine.get_obj_dof_limits(0, 0)
+    np.testing.assert_allclose(low, kin.dof_limits()[0])
+    np.testing.assert_allclose(high, kin.dof_limits()[1])
+    np.testing.assert_allclose(engine.get_obj_torque_limits(0, 0), kin.dof_array("torque_limit"))
+    kp, kd = engine.get_obj_pd_gains(0, 0)
+    np.testing.assert_allclose(kp, kin.dof_array("kp"))
+    np.testing.assert_allclose(kd, kin.dof_array("kd"))
+    assert engine.get_timestep() == pytest.approx(1 / 30) and engine.get_sim_timestep() == pytest.approx(1 / 240)
+    np.testing.assert_allclose(engine.get_gravity(), [0, 0, -9.81])
+    m = engine.mj_model
+    # 8 ball joints + 4 hinges + free root; passive springs gone; per-axis armature kept on the balls
+    assert np.sum(m.jnt_type == mujoco.mjtJoint.mjJNT_BALL) == 8 and m.nu == 28
+    assert np.all(m.jnt_stiffness == 0) and np.all(m.dof_damping == 0)
+    np.testing.assert_allclose(m.dof_armature[6:], kin.dof_array("armature"))
+    assert engine.get_env_offsets().shape == (1, 3)
+
+
+def test_body_poses_equal_kinematic_fk(humanoid_xml):
+    engine = make_engine(humanoid_xml, num_envs=4)
+    kin = load_char_model(humanoid_xml)
+
+    def check() -> None:
+        dof = engine.get_dof_pos(0)
+        pos, rot = kin.forward_kinematics(engine.get_root_pos(0), engine.get_root_rot(0), kin.dof_to_rot(dof))
+        torch.testing.assert_close(engine.get_body_pos(0), pos, atol=1e-4, rtol=0)
+        assert_quat_close(engine.get_body_rot(0), rot, atol=1e-4)
+
+    torch.testing.assert_close(engine.get_root_pos(0), torch.tensor([INIT_ROOT_POS] * 4))
+    check()  # right after creation
+    gen = torch.Generator().manual_seed(0)
+    engine.set_root_rot(None, 0, random_quat(4, gen))
+    engine.set_dof_pos(None, 0, random_dof(engine, 4, gen))
+    check()  # right after a reset by the setters
+
+
+def test_state_round_trips_and_velocity_frames(humanoid_xml):
+    n = 5
+    engine = make_engine(humanoid_xml, num_envs=n)
+    gen = torch.Generator().manual_seed(1)
+    state = {
+        "root_pos": torch.randn(n, 3, generator=gen) + torch.tensor([0.0, 0.0, 1.0]),
+        "root_rot": random_quat(n, gen),
+        "root_vel": torch.randn(n, 3, generator=gen),
+        "root_ang_vel": torch.randn(n, 3, generator=gen),
+        "dof_pos": random_dof(engine, n, gen),
+        "dof_vel": torch.randn(n, 28, generator=gen),
+    }
+    for name, value in state.items():  # each setter keeps what the others set (world-frame velocities)
+        getattr(engine, f"set_{name}")(None, 0, value)
+    for name, value in state.items():
+        got = getattr(engine, f"get_{name}")(0)
+        if name == "root_rot":
+            assert_quat_close(got, value, atol=1e-6)
+        else:
+            torch.testing.assert_close(got, value, atol=1e-5, rtol=1e-5, msg=name)
+
+    # Body velocities: world frame at each body's centre of mass, as MuJoCo's own mj_objectVelocity says.
+    m, res = engine.mj_model, np.zeros(6)
+    for e in range(n):
+        d = engine.mj_datas[e]
+        for b, body_id in enumerate(engine._layouts[0].body_ids):
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(body_id), res, 0)
+            np.testing.assert_allclose(engine.get_body_ang_vel(0)[e, b], res[:3], atol=1e-4)
+            np.testing.assert_allclose(engine.get_body_vel(0)[e, b], res[3:], atol=1e-4)
+
+
+def test_setting_only_some_envs_and_broadcast_values(humanoid_xml):
+    engine = make_engine(humanoid_xml, num_envs=3)
+    before = engine.get_root_pos(0).clone()
+    engine.set_root_pos(torch.tensor([1]), 0, torch.tensor([[1.0, 2.0, 3.0]]))
+    engine.set_dof_vel(torch.tensor([0, 2]), 0, 0.0)  # scalars broadcast
+    pos = engine.get_root_pos(0)
+    torch.testing.assert_close(pos[1], torch.tensor([1.0, 2.0, 3.0]))
+    torch.testing.assert_close(pos[[0, 2]], before[[0, 2]])
+
+
+# ---------------------------------------------------------------------------------------------- control
+def test_pd_holds_the_init_pose_for_5_seconds(humanoid_xml):
+    engine = make_engine(humanoid_xml)
+    engine.set_dof_pos(None, 0, init_dof())
+    engine.set_cmd(0, init_dof())
+    heights = []
+    for _ in range(150):  # 5 s at 30 Hz
+        engine.step()
+        heights.append(engine.get_root_pos(0)[0, 2].item())
+    assert max(abs(h - INIT_ROOT_POS[2]) for h in heights) < 0.05, (min(heights), max(heights))
+    up = tu.quat_rotate(engine.get_root_rot(0), torch.tensor([[0.0, 0.0, 1.0]]))
+    assert up[0, 2].item() > 0.99  # still upright
+
+
+def test_ball_joint_actuator_length_is_the_exp_map(humanoid_xml):
+    """The claim of spec §2.4: a ball-joint actuator with gear e_i has length = exp-map component i."""
+    engine = make_engine(humanoid_xml, num_envs=3)
+    engine.set_dof_pos(None, 0, random_dof(engine, 3, torch.Generator().manual_seed(2)))
+    dof = engine.get_dof_pos(0).double().numpy()
+    for e, d in enumerate(engine.mj_datas):
+        mujoco.mj_forward(engine.mj_model, d)
+        np.testing.assert_allclose(d.actuator_length[engine._layouts[0].act_ids], dof[e], atol=1e-5)
+
+
+def test_ball_joint_pd_reaches_an_exp_map_target(humanoid_xml):
+    engine = make_engine(humanoid_xml, objs=({"fix_root": True, "start_pos": (0.0, 0.0, 1.5)},))
+    engine.mj_model.opt.gravity[:] = 0.0  # exact convergence: no sag under the arm's weight
+    target = init_dof()
+    target[0, R_SHOULDER] = torch.tensor([0.9, -0.4, 0.6])  # all three components non-zero
+    target[0, 0:3] = torch.tensor([0.2, 0.3, -0.25])  # abdomen
+    engine.set_cmd(0, target)
+    for _ in range(60):  # 2 s
+        engine.step()
+    torch.testing.assert_close(engine.get_dof_pos(0), target, atol=2e-3, rtol=0)
+
+
+@pytest.mark.parametrize("mode", ["pos", "vel", "torque", "none"])
+def test_actuator_gains_follow_the_control_mode(humanoid_xml, mode):
+    engine = make_engine(humanoid_xml, mode=mode)
+    m, kin = engine.mj_model, load_char_model(humanoid_xml)
+    kp, kd, limit = kin.dof_array("kp"), kin.dof_array("kd"), kin.dof_array("torque_limit")
+    if mode == "none":
+        assert m.nu == 0 and not engine.get_obj_pd_gains(0, 0)[0].any()
+        return
+    gain, bias = m.actuator_gainprm[:, 0], m.actuator_biasprm[:, :3]
+    expected = {
+        "pos": (kp, np.stack([0 * kp, -kp, -kd], -1), kp, kd),
+        "vel": (kd, np.stack([0 * kp, 0 * kp, -kd], -1), 0 * kp, kd),
+        "torque": (1 + 0 * kp, np.zeros((28, 3)), 0 * kp, 0 * kd),
+    }[mode]
+    np.testing.assert_allclose(gain, expected[0])
+    np.testing.assert_allclose(bias, expected[1])
+    np.testing.assert_allclose(engine.get_obj_pd_gains(0, 0)[0], expected[2])
+    np.testing.assert_allclose(engine.get_obj_pd_gains(0, 0)[1], expected[3])
+    np.testing.assert_allclose(m.actuator_forcerange[:, 1], limit)  # clipped to ± the torque limit
+
+
+def test_pd_explicit_drives_hinges_and_rejects_ball_joints(humanoid_xml, tmp_path):
+    xml = tmp_path / "arm.xml"
+    xml.write_text(
+        """<mujoco><worldbody><body name="base"><geom type="box" size=".05 .05 .05" mass="1"/>
+        <body name="link"><joint name="elbow" type="hinge" axis="0 1 0" stiffness="50" damping="5"
+         actuatorfrcrange="-20 20"/><geom type="capsule" fromto="0 0 0 .3 0 0" size=".03" mass="0.5"/>
+        </body></body></worldbody></mujoco>"""
+    )
+    engine = make_engine(xml, mode="pd_1d", objs=({"fix_root": True, "start_pos": (0.0, 0.0, 1.0)},))
+    assert engine.get_control_mode() == ControlMode.pd_explicit
+    engine.mj_model.opt.gravity[:] = 0.0
+    engine.set_cmd(0, torch.tensor([[0.5]]))
+    for _ in range(30):
+        engine.step()
+    assert engine.get_dof_pos(0)[0, 0].item() == pytest.approx(0.5, abs=1e-3)
+    with pytest.raises(MimicKitError, match="pd_explicit"):
+        make_engine(humanoid_xml, mode="pd_explicit")
+
+
+def test_body_forces_act_for_one_control_step(humanoid_xml):
+    engine = make_engine(humanoid_xml, num_envs=2, objs=({"start_pos": (0.0, 0.0, 2.0)},))
+    engine.set_body_forces(torch.tensor([1]), 0, 0, torch.tensor([[0.0, 0.0, 5000.0]]))
+    engine.step()
+    vz = engine.get_root_vel(0)[:, 2]
+    assert vz[1].item() > vz[0].item() + 1.0  # pushed up against gravity
+    assert not engine.mj_datas[1].xfrc_applied.any()  # cleared after the step
+
+
+# ---------------------------------------------------------------------------------------------- resets
+def test_resetting_one_env_leaves_the_others_untouched(humanoid_xml):
+    gen = torch.Generator().manual_seed(3)
+    cmds = [random_dof(make_engine(humanoid_xml, 3), 3, gen) for _ in range(10)]
+    a, b = make_engine(humanoid_xml, num_envs=3), make_engine(humanoid_xml, num_envs=3)
+    for eng in (a, b):
+        eng.set_dof_pos(None, 0, init_dof(3))
+    for cmd in cmds[:5]:
+        for eng in (a, b):
+            eng.set_cmd(0, cmd)
+            eng.step()
+    reset = torch.tensor([1])
+    a.set_root_pos(reset, 0, torch.tensor([[0.0, 0.0, 1.2]]))
+    a.set_root_rot(reset, 0, torch.tensor([[0.0, 0.0, 0.0, 1.0]]))
+    a.set_root_vel(reset, 0, 0.0)
+    a.set_root_ang_vel(reset, 0, 0.0)
+    a.set_dof_pos(reset, 0, init_dof())
+    a.set_dof_vel(reset, 0, 0.0)
+    others = [0, 2]
+    for k in range(6):
+        for name in ("root_pos", "root_rot", "root_vel", "dof_pos", "dof_vel", "body_pos", "contact_forces"):
+            got, ref = getattr(a, f"get_{name}")(0), getattr(b, f"get_{name}")(0)
+            assert torch.equal(got[others], ref[others]), (name, k)
+        if k == 0:
+            torch.testing.assert_close(a.get_root_pos(0)[1], torch.tensor([0.0, 0.0, 1.2]))
+        if k < 5:
+            for eng in (a, b):
+                eng.set_cmd(0, cmds[5 + k])
+                eng.step()
+
+
+def test_threaded_stepping_equals_one_thread(humanoid_xml):
+    engines = []
+    for threads in (1, 2):
+        cfg = EngineConfig(engine_name="mujoco", control_mode="pos", control_freq=30, sim_freq=240, env_spacing=5,
+                           num_threads=threads)  # fmt: skip
+        engine = MujocoEngine(cfg, 5, "cpu")
+        for _ in range(5):
+            engine.create_obj(engine.create_env(), ObjType.articulated, str(humanoid_xml), "h", start_pos=INIT_ROOT_POS)
+        engine.initialize_sim()
+        engines.append(engine)
+    gen = torch.Generator().manual_seed(4)
+    for _ in range(5):
+        cmd = random_dof(engines[0], 5, gen)
+        for engine in engines:
+            engine.set_cmd(0, cmd)
+            engine.step()
+    assert torch.equal(engines[0].get_body_pos(0), engines[1].get_body_pos(0))
+    engines[1].close()  # after close the calling thread steps every env itself
+    engines[1].step()
+    engines[0].step()
+    assert torch.equal(engines[0].get_dof_pos(0), engines[1].get_dof_pos(0))
+
+
+# ---------------------------------------------------------------------------------------------- contacts
+def test_ground_contact_forces_carry_the_body_weight_on_the_feet(humanoid_xml):
+    engine = make_engine(humanoid_xml)
+    engine.set_dof_pos(None, 0, init_dof())
+    engine.set_cmd(0, init_dof())
+    for _ in range(45):  # 1.5 s: settled
+        engine.step()
+    ground = engine.get_ground_contact_forces(0)[0]  # [B, 3], acting on each body
+    weight = engine.calc_obj_mass(0, 0) * 9.81
+    feet = [engine.find_obj_body_id(0, "right_foot"), engine.find_obj_body_id(0, "left_foot")]
+    total = ground.sum(0)
+    assert total[2].item() == pytest.approx(weight, rel=0.05)
+    assert ground[feet, 2].sum().item() == pytest.approx(total[2].item(), rel=1e-3)
+    assert abs(total[0].item()) < 0.05 * weight and abs(total[1].item()) < 0.05 * weight
+    assert (ground[feet, 2] > 0.2 * weight).all()  # both feet bear weight
+    torch.testing.assert_close(engine.get_contact_forces(0)[0], ground)  # no other contacts
+
+    # The same sums by hand from mj_contactForce: contact frame → world, signed to act on the body.
+    m, d = engine.mj_model, engine.mj_datas[0]
+    by_hand = np.zeros((m.nbody, 3))
+    local = np.zeros(6)
+    for i in range(d.ncon):
+        c = d.contact[i]
+        mujoco.mj_contactForce(m, d, i, local)
+        world = c.frame.reshape(3, 3).T @ local[:3]  # force of geom1 on geom2, world frame
+        by_hand[m.geom_bodyid[c.geom[0]]] -= world
+        by_hand[m.geom_bodyid[c.geom[1]]] += world
+    body_ids = engine._layouts[0].body_ids
+    np.testing.assert_allclose(ground.double().numpy(), by_hand[body_ids], rtol=1e-4, atol=1e-3)
+
+
+def test_visual_ghost_neither_collides_nor_falls(humanoid_xml):
+    engine = make_engine(
+        humanoid_xml,
+        objs=(
+            {},
+            {"is_visual": True, "disable_motors": True, "color": (0.2, 0.6, 1.0), "start_pos": (0.3, 0, 0.882416)},
+        ),
+    )
+    assert engine.get_objs_per_env() == 2
+    assert not engine.get_obj_pd_gains(0, 1)[0].any()
+    engine.set_dof_pos(None, 0, init_dof())
+    engine.set_cmd(0, init_dof())
+    start = engine.get_body_pos(1).clone()
+    for _ in range(30):
+        engine.step()
+    torch.testing.assert_close(engine.get_body_pos(1), start, atol=1e-3, rtol=0)  # gravity-compensated
+    torch.testing.assert_close(engine.get_contact_forces(0), engine.get_ground_contact_forces(0))
+    assert not engine.get_contact_forces(1).any()
+
+
+def test_fixed_root_object_stays_and_moves_only_when_set(humanoid_xml):
+    engine = make_engine(humanoid_xml, objs=({"fix_root": True, "start_pos": (1.0, 0.0, 1.5)},))
+    assert engine.get_obj_num_dofs(0) == 28
+    for _ in range(10):
+        engine.step()
+    torch.testing.assert_close(engine.get_root_pos(0), torch.tensor([[1.0, 0.0, 1.5]]))
+    assert not engine.get_root_vel(0).any()
+    engine.set_root_pos(None, 0, torch.tensor([[2.0, 1.0, 1.0]]))
+    engine.set_root_rot(None, 0, torch.tensor([[0.0, 0.0, math.sin(0.5), math.cos(0.5)]]))
+    engine.step()
+    torch.testing.assert_close(engine.get_root_pos(0), torch.tensor([[2.0, 1.0, 1.0]]))
+    assert_quat_close(engine.get_root_rot(0), torch.tensor([[0.0, 0.0, math.sin(0.5), math.cos(0.5)]]), 1e-6)
+
+
+# ---------------------------------------------------------------------------------------------- config
+def test_isaac_gym_config_is_one_clear_error():
+    cfg = {"engine_name": "isaac_gym", "control_mode": "pos", "control_freq": 30, "sim_freq": 120, "env_spacing": 5}
+    with pytest.raises(MimicKitError) as err:
+        build_engine(cfg, 4, "cpu", source="data/engines/isaac_gym_engine.yaml")
+    msg = str(err.value)
+    assert "isaac_gym" in msg and "mujoco" in msg and "newton" in msg and "\n" not in msg
+    assert msg.startswith("data/engines/isaac_gym_engine.yaml")
+
+
+def test_newton_engine_names_its_install_extra():
+    cfg = {"engine_name": "newton", "control_mode": "pos", "control_freq": 30, "sim_freq": 240, "env_spacing": 5}
+    with pytest.raises(MimicKitError, match=r"pip install \.\[newton\]"):
+        build_engine(cfg, 4, "cpu")
+
+
+def test_engine_yaml_and_config_rules():
+    cfg = load_config(EngineConfig, PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml")
+    assert (cfg.engine_name, cfg.control_mode, cfg.control_freq, cfg.sim_freq) == ("mujoco", ControlMode.pos, 30, 240)
+    assert cfg.substeps == 8 and cfg.env_spacing == 5 and cfg.ground_contact_height == 0.3
+    base = {"engine_name": "mujoco", "env_spacing": 5}
+    assert EngineConfig(**base, control_mode="pd_1d").control_mode == ControlMode.pd_explicit
+    assert EngineConfig(**base, control_mode=3).control_mode == ControlMode.torque
+    assert EngineConfig(**base).control_freq == 10 and EngineConfig(**base).sim_freq == 60
+    with pytest.raises(MimicKitError, match="multiple of control_freq"):
+        build_engine({**base, "control_freq": 30, "sim_freq": 100}, 1, "cpu")
+    with pytest.raises(MimicKitError, match="unknown key 'substeps'"):
+        build_engine({**base, "substeps": 4}, 1, "cpu")
+    with pytest.raises(MimicKitError, match="unknown control mode"):
+        build_engine({**base, "control_mode": "position"}, 1, "cpu")
+    engine = build_engine({**base, "control_mode": "pos"}, 2, "cpu")
+    assert isinstance(engine, MujocoEngine) and engine.get_name() == "mujoco"
+
+
+def test_env_objects_must_match(humanoid_xml, tmp_path):
+    cfg = EngineConfig(engine_name="mujoco", control_mode="pos", env_spacing=5)
+    engine = MujocoEngine(cfg, 2, "cpu")
+    engine.create_obj(engine.create_env(), ObjType.articulated, str(humanoid_xml), "humanoid")
+    engine.create_obj(engine.create_env(), ObjType.articulated, str(humanoid_xml), "humanoid", fix_root=True)
+    with pytest.raises(MimicKitError, match="identical object lists"):
+        engine.initialize_sim()
+    with pytest.raises(MimicKitError, match="not found"):
+        engine.create_obj(0, ObjType.articulated, str(tmp_path / "missing.xml"), "x")

@@ -1,0 +1,149 @@
+"""The DeepMimic, view-motion and char environments on the real MuJoCo engine."""
+
+import math
+
+import pytest
+import torch
+
+from mimickit.envs.base_env import DoneFlags
+from mimickit.envs.char_env import CharEnv
+from mimickit.envs.deepmimic_env import DeepMimicEnv
+from mimickit.envs.env_builder import build_env
+from mimickit.envs.env_config import CharEnvConfig, load_env_configs
+from mimickit.envs.view_motion_env import ViewMotionEnv
+from mimickit.util import torch_util as tu
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import PROJECT_DATA_DIR
+
+ENGINE = PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
+DEEPMIMIC = PROJECT_DATA_DIR / "envs/deepmimic_humanoid_env.yaml"
+VIEW = PROJECT_DATA_DIR / "envs/view_motion_humanoid_env.yaml"
+
+
+def make(env_file, num_envs=4, cls=None, **overrides):
+    env_cfg, engine_cfg = load_env_configs(env_file, ENGINE)
+    env_cfg = env_cfg.model_copy(update=overrides)
+    if cls is None:
+        return build_env(env_file, ENGINE, num_envs) if not overrides else DeepMimicEnv(env_cfg, engine_cfg, num_envs)
+    return cls(env_cfg, engine_cfg, num_envs)
+
+
+def test_observation_and_action_sizes():
+    env = make(DEEPMIMIC)
+    assert env.get_obs_space().shape == (464,)
+    assert env.get_action_space().shape == (28,)
+    low, high = env.get_action_space().low, env.get_action_space().high
+    assert low[0] == pytest.approx(-1.885, abs=1e-3) and high[9] == pytest.approx(3.351, abs=1e-3)
+    assert low[9] == pytest.approx(-0.5585, abs=1e-3)
+    env_cfg, engine_cfg = load_env_configs(DEEPMIMIC, ENGINE)
+    fields = {k: getattr(env_cfg, k) for k in CharEnvConfig.model_fields}
+    char = CharEnv(CharEnvConfig(**dict(fields, env_name="char")), engine_cfg, 2)
+    assert char.get_obs_space().shape == (140,)
+
+
+def test_reference_state_scores_one():
+    env = make(DEEPMIMIC, num_envs=8)
+    _, info = env.reset()
+    terms = info["reward_terms"]
+    assert set(terms) == {"pose", "vel", "root_pose", "root_vel", "key_pos"}
+    for name, value in terms.items():
+        torch.testing.assert_close(value, torch.ones(8), atol=1e-3, rtol=0, msg=name)
+    total = sum(env.reward_weights[k] * terms[k] for k in terms)
+    torch.testing.assert_close(total, torch.ones(8), atol=1e-3, rtol=0)
+    assert info["tracking"]["body_pos_err"].max() < 1e-4
+
+
+def test_view_motion_matches_kinematics(test_data):
+    walk = test_data / "motions/humanoid/humanoid_walk.pkl"
+    env = make(VIEW, num_envs=2, cls=ViewMotionEnv, motion_file=str(walk))
+    env.reset()
+    lib, char = env.motion_lib, env.char_model
+    worst = 0.0
+    for _ in range(40):
+        env.step(torch.zeros(2, 28))
+        t = env.get_env_time()
+        f = lib.calc_motion_frame(torch.zeros(2, dtype=torch.long), t)
+        body_pos, _ = char.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
+        sim = env.engine.get_body_pos(env.get_char_id())
+        worst = max(worst, (sim - body_pos).norm(dim=-1).max().item())
+    assert worst < 1e-3
+
+
+def test_pd_holds_init_pose_for_five_seconds():
+    env_cfg, engine_cfg = load_env_configs(DEEPMIMIC, ENGINE)
+    fields = {k: getattr(env_cfg, k) for k in CharEnvConfig.model_fields}
+    env = CharEnv(CharEnvConfig(**dict(fields, env_name="char", episode_length=100.0)), engine_cfg, 2)
+    env.reset()
+    target = env._init_dof_pos.expand(2, -1)
+    steps = int(5.0 * engine_cfg.control_freq)
+    heights = []
+    for _ in range(steps):
+        env.step(target)
+        heights.append(env.engine.get_root_pos(env.get_char_id())[:, 2].clone())
+    h = torch.stack(heights)
+    assert (h - 0.882416).abs().max() < 0.05
+
+
+def test_fall_is_fail_and_time_limit_is_time():
+    env = make(DEEPMIMIC, num_envs=2, pose_termination=False)
+    env.reset()
+    e, c = env.engine, env.get_char_id()
+    # Env 0 lies on its back on the floor: the torso touches the ground.
+    lying = tu.quat_from_axis_angle(torch.tensor([0.0, 1.0, 0.0]), torch.tensor(-math.pi / 2))
+    e.set_root_pos(torch.tensor([0]), c, torch.tensor([[0.0, 0.0, 0.09]]))
+    e.set_root_rot(torch.tensor([0]), c, lying.unsqueeze(0))
+    e.set_root_vel(torch.tensor([0]), c, 0.0)
+    _, _, done, _ = env.step(env.engine.get_dof_pos(c).clone())
+    assert done[0] == DoneFlags.FAIL
+    short = make(DEEPMIMIC, num_envs=2, episode_length=0.2, enable_early_termination=False)
+    short.reset()
+    flags = [short.step(short.engine.get_dof_pos(0).clone())[2].clone() for _ in range(6)]
+    assert (flags[4] == DoneFlags.NULL).all() and (flags[5] == DoneFlags.TIME).all()
+
+
+def test_reset_one_env_leaves_others():
+    env = make(DEEPMIMIC, num_envs=3)
+    env.reset()
+    for _ in range(3):
+        env.step(env.engine.get_dof_pos(0).clone())
+    before = {k: v.clone() for k, v in env._char_state().items()}
+    obs_before = env._obs_buf.clone()
+    env.reset(torch.tensor([1]))
+    after = env._char_state()
+    for k in before:
+        torch.testing.assert_close(after[k][[0, 2]], before[k][[0, 2]], msg=k)
+    torch.testing.assert_close(env._obs_buf[[0, 2]], obs_before[[0, 2]])
+
+
+def test_mimickit_style_yaml_with_isaac_engine_block(tmp_path):
+    text = DEEPMIMIC.read_text() + "\nengine:\n    engine_name: isaac_gym\n    sim_freq: 120\n    sim: {substeps: 2}\n"
+    f = tmp_path / "deepmimic_env.yaml"
+    f.write_text(text)
+    with pytest.warns(UserWarning, match="ignored"):
+        env_cfg, engine_cfg = load_env_configs(f, ENGINE)
+    assert engine_cfg.engine_name == "mujoco" and engine_cfg.sim_freq != 120
+    with pytest.raises(MimicKitError, match="supported engines: mujoco, newton"):
+        load_env_configs(f, None)
+
+
+def test_unknown_env_key_is_named(tmp_path):
+    f = tmp_path / "env.yaml"
+    f.write_text(DEEPMIMIC.read_text().replace("rand_reset: True", "rand_rest: True"))
+    with pytest.raises(MimicKitError, match="unknown key 'rand_rest'"):
+        load_env_configs(f, ENGINE)
+
+
+def test_bench_json_reports_ratio():
+    import json
+    import subprocess
+    import sys
+
+    r = subprocess.run(
+        [sys.executable, "-m", "mimickit.cli", "bench", "--num_envs", "8", "--steps", "5", "--json"],
+        capture_output=True, text=True, cwd=PROJECT_DATA_DIR.parent,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert {"num_envs", "substeps", "env_steps_per_s", "raw_sim_steps_per_s", "ratio"} <= set(out)
+    assert out["num_envs"] == 8 and out["substeps"] == 8
+    assert out["ratio"] == pytest.approx(out["env_steps_per_s"] * 8 / out["raw_sim_steps_per_s"], rel=1e-3)
