@@ -11,25 +11,32 @@ import contextlib
 import io
 import threading
 from collections.abc import AsyncIterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
+import torch
 import viser
 from fastapi import FastAPI, Request
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
+from mimickit.anim.motion import load_motion
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_ROOT
+from studio.api import checkpoints as checkpoints_api
 from studio.api import library as library_api
 from studio.api import runs as runs_api
 from studio.api import scene as scene_api
+from studio.clip_pose import pose_clip
 from studio.library import Library
 from studio.player import Player
 from studio.player_gui import PlayerGui
 from studio.registry import Registry
+from studio.rollout import Rollout, RolloutPlayer, RolloutSource
+from studio.rollout_gui import RolloutGui
 from studio.runs import RunError, RunManager
 from studio.scene import StudioScene
-from studio.security import PathError, TokenMiddleware
+from studio.security import PathError, TokenMiddleware, confine
 from studio.settings import Settings
 
 WEB_DIR = PROJECT_ROOT / "web"
@@ -47,12 +54,49 @@ class Studio:
     viser_server: viser.ViserServer | None = None
     scene: StudioScene | None = None
     player: Player | None = None
+    rollout: RolloutPlayer | None = None
+    rollout_gui: RolloutGui | None = None
+    _scene_lock: threading.RLock = field(default_factory=threading.RLock)
 
     @property
     def viser_port(self) -> int | None:
         return self.viser_server.get_port() if self.viser_server else None
 
+    @property
+    def mode(self) -> str:
+        return "rollout" if self.rollout is not None else "clip"
+
+    def active(self) -> Any:
+        """What the scene commands drive: the rollout while one is loaded, else the clip player."""
+        return self.rollout if self.rollout is not None else self.player
+
+    def load_rollout(self, source: RolloutSource, *, play: bool = True) -> RolloutPlayer:
+        """Build the rollout (MimicKitError when the checkpoint does not fit) and show it instead of
+        the clip or the previous rollout."""
+        rollout = Rollout(source)  # slow (env, agent, checkpoint): before anything shown is touched
+        with self._scene_lock:
+            self.end_rollout()
+            if self.player:
+                self.player.pause()
+            self.rollout = RolloutPlayer(rollout, self.scene, play=play)
+            if self.rollout_gui:
+                self.rollout_gui.attach(self.rollout)
+            return self.rollout
+
+    def end_rollout(self) -> None:
+        """Stop and forget the rollout (before a clip is loaded)."""
+        with self._scene_lock:
+            rp, self.rollout = self.rollout, None
+            if rp is None:
+                return
+            if self.rollout_gui:
+                self.rollout_gui.detach()
+            rp.close()
+            if self.scene:
+                self.scene.end_rollout()
+
     def close(self) -> None:
+        self.end_rollout()
         if self.player:
             self.player.close()
         self.runs.close()
@@ -63,6 +107,9 @@ class Studio:
 
 def create_studio(settings: Settings) -> Studio:
     settings.resolved()
+    # The studio's own torch work (a rollout's policy, clip kinematics) is small: one thread, so that
+    # torch's idle OpenMP workers do not spin on the cores the trainers need.
+    torch.set_num_threads(1)
     settings.runs_dir.mkdir(parents=True, exist_ok=True)
     registry = Registry(settings.runs_dir / REGISTRY_FILE)
     studio = Studio(settings, Library(settings), registry, RunManager(settings, registry))
@@ -74,10 +121,27 @@ def create_studio(settings: Settings) -> Studio:
             )
         studio.scene = StudioScene(studio.viser_server)
         studio.player = Player(studio.scene)
-        PlayerGui(studio.viser_server, studio.player)
+        player_gui = PlayerGui(studio.viser_server, studio.player, active=studio.active)
+        studio.rollout_gui = RolloutGui(studio.viser_server, [player_gui.folder, player_gui.readout_folder])
+        if settings.startup_clip is not None:
+            _play_startup_clip(studio)
     # Reading every clip once takes a second or two with a large data folder: do it before anyone asks.
     threading.Thread(target=studio.library.motions, name="library-warmup", daemon=True).start()
     return studio
+
+
+def _play_startup_clip(studio: Studio) -> None:
+    """What a new user sees first: the character moving, not an empty grid."""
+    settings = studio.settings
+    clip, char = settings.startup_clip, settings.startup_char
+    if not clip.is_file():
+        raise MimicKitError(f"--clip {clip}: no such file")
+    if char is None:
+        guessed = studio.library.character_for_width(load_motion(clip).frame_dim, clip)
+        if guessed is None:
+            raise MimicKitError(f"--clip {clip}: no character in the data folders fits it; name one with --char")
+        char = confine(guessed, settings.readable_roots)
+    studio.player.load(pose_clip(clip, char), play=True)
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -100,7 +164,7 @@ def create_app(settings: Settings) -> FastAPI:
             raise ValueError(f"binding {settings.host} (not loopback) requires a token")
         app.add_middleware(TokenMiddleware, token=settings.token)
 
-    for module in (library_api, scene_api, runs_api):
+    for module in (library_api, scene_api, runs_api, checkpoints_api):
         app.include_router(module.router, prefix="/api")
     _add_error_handlers(app)
 

@@ -15,7 +15,7 @@ import uvicorn
 
 from mimickit.util.errors import MimicKitError
 from studio.security import new_token
-from studio.settings import DEFAULT_TRAINER, Settings, parse_trainer
+from studio.settings import DEFAULT_TRAINER, DEMO_CLIP, Settings, parse_trainer
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -28,6 +28,10 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--data-dir", type=Path, help="a MimicKit data folder (motions/, assets/, datasets/, ...)")
     serve.add_argument("--runs-dir", type=Path, help="where runs, uploads and the registry live")
     serve.add_argument("--token", help="access token for /api (generated and printed if needed and absent)")
+    serve.add_argument(
+        "--clip", default=str(DEMO_CLIP), help="the clip playing when the page opens ('none': an empty scene)"
+    )
+    serve.add_argument("--char", help="the MJCF character for --clip (default: guessed from its frame width)")
     serve.add_argument("--max-concurrent-runs", type=int, default=1, help="runs trained at once; the rest queue")
     serve.add_argument(
         "--trainer",
@@ -51,6 +55,10 @@ def serve(args: argparse.Namespace) -> int:
     )
     if args.runs_dir:
         settings.runs_dir = args.runs_dir
+    if args.clip.lower() == "none":
+        settings.startup_clip = None
+    elif Path(args.clip).resolve() != DEMO_CLIP.resolve() or args.char:
+        settings.startup_clip, settings.startup_char = Path(args.clip), args.char and Path(args.char)
     if settings.data_dir is not None and not Path(settings.data_dir).is_dir():
         raise MimicKitError(f"--data-dir {settings.data_dir} is not a folder")
     if settings.needs_token and not settings.token:

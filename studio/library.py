@@ -216,5 +216,5 @@ def _arg_file_info(path: Path) -> dict[str, list[str]]:
     """The `--key values...` table of an arg file, for the launch form."""
     parser = ArgParser()
     parser.load_file(str(path))
-    keys = parser.keys()
+    keys = parser.all_keys()
     return {k: parser.parse_strings(k) for k in keys}

@@ -110,6 +110,7 @@ class Player:
             s = self.state
             pose = self.pose
             return {
+                "mode": "clip",
                 "clip": str(pose.path) if pose else None,
                 "char": str(pose.char_path) if pose else None,
                 "num_frames": pose.num_frames if pose else 0,

@@ -9,6 +9,8 @@ ignored so that the player moving the timeline does not seek itself.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from typing import Any
 
 import viser
 
@@ -18,13 +20,16 @@ READOUT_PERIOD_S = 0.2  # the joint table is re-sent at most 5 times a second wh
 
 
 class PlayerGui:
-    def __init__(self, server: viser.ViserServer, player: Player) -> None:
+    def __init__(self, server: viser.ViserServer, player: Player, active: Callable[[], Any] | None = None) -> None:
+        """`active()`: what the keys drive (the clip player, or a rollout while one is loaded)."""
         self.player = player
+        active = active or (lambda: player)
         self._last_readout = 0.0
         self._shown: object = None  # the ClipPose the title and timeline range describe
         gui = server.gui
         gui.configure_theme(dark_mode=True, control_layout="floating", show_share_button=False)
-        with gui.add_folder("Player"):
+        self.folder = gui.add_folder("Player")
+        with self.folder:
             self.title = gui.add_markdown("*no clip loaded: pick one in the library*")
             self.play_button = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY)
             self.step_button = gui.add_button("Step one frame", icon=viser.Icon.PLAYER_TRACK_NEXT)
@@ -32,11 +37,12 @@ class PlayerGui:
             self.speed = gui.add_slider("Speed", min=MIN_SPEED, max=MAX_SPEED, step=0.05, initial_value=1.0)
             self.loop = gui.add_checkbox("Loop", initial_value=True)
             self.follow = gui.add_checkbox("Camera follow", initial_value=True)
-        with gui.add_folder("Joint values (rad)"):
+        self.readout_folder = gui.add_folder("Joint values (rad)")
+        with self.readout_folder:
             self.readout = gui.add_markdown("")
         # Hotkeys work while the pointer/focus is in the scene; the dashboard page handles them elsewhere.
-        gui.add_command("Play / pause", hotkey="enter").on_trigger(lambda _: player.toggle())
-        gui.add_command("Step one frame", hotkey="space").on_trigger(lambda _: player.step(1))
+        gui.add_command("Play / pause", hotkey="enter").on_trigger(lambda _: active().toggle())
+        gui.add_command("Step one frame", hotkey="space").on_trigger(lambda _: active().step(1))
 
         self.play_button.on_click(lambda _: player.toggle())
         self.step_button.on_click(lambda _: player.step(1))

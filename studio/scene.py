@@ -1,5 +1,7 @@
 """The 3D scene in viser: a character drawn from its MJCF (mjviser), a dark ground grid, the root
-path of the clip, foot-contact markers, and a camera that follows the character.
+path of the clip, foot-contact markers, and a camera that follows the character. For a live rollout
+the scene shows the env's own MuJoCo model instead: the simulated character in its side colours and
+the reference character (the env's visual-only "ghost") as a translucent green figure.
 
 Camera follow moves the world, not the camera: the character's root is kept over the origin (in x, y)
 and the ground, path and markers shift under it, so each browser keeps its own orbit/zoom.
@@ -7,6 +9,7 @@ and the ground, path and markers shift under it, so each browser keeps its own o
 
 from __future__ import annotations
 
+import copy
 import re
 import threading
 import warnings
@@ -16,6 +19,7 @@ import mujoco
 import numpy as np
 import viser
 from mjviser import ViserMujocoScene
+from mjviser.conversions import merge_geoms
 
 from mimickit.anim.mjcf_loader import load_mjcf_model
 from studio.clip_pose import ClipPose
@@ -29,6 +33,12 @@ _LEFT_NAME = re.compile(r"(^|_)(left|l)(_|$)|^[fhr]l_", re.IGNORECASE)
 _RIGHT_NAME = re.compile(r"(^|_)(right|r)(_|$)|^[fhr]r_", re.IGNORECASE)
 _EXTREMITY_NAME = re.compile(r"hand|foot|toe|wrist|ankle", re.IGNORECASE)
 
+GHOST_COLOR = (120, 230, 150)
+GHOST_OPACITY = 0.38
+# A rollout's character and ghost stand side by side along x (the env's ref_char_offset): a front
+# view, aimed right of the pair so that viser's panel (top right) does not hide the ghost.
+ROLLOUT_CAMERA = {"position": (0.5, -3.4, 1.35), "look_at": (0.75, 0.0, 0.7)}
+CLIP_CAMERA = {"position": (2.2, -2.6, 1.5), "look_at": (0.0, 0.0, 0.8)}
 PATH_COLOR = (250, 176, 5)
 CONTACT_COLOR = (60, 220, 120)
 MAX_PATH_POINTS = 400
@@ -41,13 +51,29 @@ def body_color(name: str) -> tuple[float, float, float]:
 
 
 def colour_model(m: mujoco.MjModel) -> None:
-    """Give every visible geom its body's side colour (materials would override rgba, so drop them)."""
+    """Give every visible geom its body's side colour (materials would override rgba, so drop them).
+    Body names may carry an engine prefix (`0_character/left_foot`): the last part decides."""
     for g in range(m.ngeom):
         if m.geom_rgba[g, 3] == 0:
             continue
         name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g])) or ""
-        m.geom_rgba[g, :3] = body_color(name)
+        m.geom_rgba[g, :3] = body_color(name.rsplit("/", 1)[-1])
         m.geom_matid[g] = -1
+
+
+def rollout_view_model(model: mujoco.MjModel, ghost_bodies: np.ndarray) -> mujoco.MjModel:
+    """A copy of an env's model for drawing: side colours, the ghost's and the floor's geoms made
+    invisible to mjviser (the ghost is drawn translucent by the scene; the studio has its own ground)."""
+    m = copy.deepcopy(model)
+    ghost = np.isin(m.geom_bodyid, ghost_bodies)
+    for g in range(m.ngeom):
+        if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+            m.geom_type[g] = mujoco.mjtGeom.mjGEOM_BOX  # mjviser would draw a plane as a second grid
+            m.geom_rgba[g, 3] = 0.0
+        elif ghost[g]:
+            m.geom_rgba[g, 3] = 0.0
+    colour_model(m)
+    return m
 
 
 class StudioScene:
@@ -60,6 +86,8 @@ class StudioScene:
         self._mj: ViserMujocoScene | None = None
         self._body_map: np.ndarray = np.zeros(0, dtype=np.int64)  # char body j -> MuJoCo body id
         self._contacts: list[viser.CylinderHandle] = []
+        self.mode = "clip"  # "clip": the player draws; "rollout": a rollout draws (clip draws are ignored)
+        self._ghost: list[tuple[int, viser.MeshHandle]] = []  # (MuJoCo body id, its translucent mesh)
         server.scene.set_up_direction("+z")
         server.scene.world_axes.visible = False
         self.world = server.scene.add_frame("/world", show_axes=False)
@@ -77,14 +105,15 @@ class StudioScene:
             shadow_opacity=0.35,
             fade_distance=40.0,
         )
-        server.initial_camera.position = (2.2, -2.6, 1.5)
-        server.initial_camera.look_at = (0.0, 0.0, 0.8)
+        self._set_camera(CLIP_CAMERA, clients=False)
 
     # -- character and clip --------------------------------------------------------------------------
 
     def show_clip(self, pose: ClipPose) -> None:
         """Draw `pose`'s character (rebuilt only when it changes), its root path and foot markers."""
         with self._lock:
+            if self.mode != "clip":
+                self._clear_rollout()
             if self._char_path != pose.char_path:
                 self._build_character(pose)
             root = pose.root_pos
@@ -125,7 +154,7 @@ class StudioScene:
     def draw(self, pose: ClipPose, frame: int, follow: bool) -> np.ndarray:
         """Pose the character at `frame`; returns the world offset applied (root x, y when following)."""
         with self._lock:
-            if self._mj is None:
+            if self._mj is None or self.mode != "clip" or self._char_path != pose.char_path:
                 return np.zeros(3)
             model = self._mj.mj_model
             offset = np.zeros(3)
@@ -149,3 +178,98 @@ class StudioScene:
             # client at ~10 poses/s here, 45 Hz at the full rate).
             self.server.flush()
             return offset
+
+    # -- rollout: an env's own model, character and ghost ------------------------------------------
+
+    def show_rollout(self, model: mujoco.MjModel, ghost_bodies: np.ndarray) -> None:
+        """Replace whatever is drawn by the env model `model`; bodies `ghost_bodies` are the reference."""
+        with self._lock:
+            self._clear_clip()
+            self._clear_rollout()
+            self.mode = "rollout"
+            view = rollout_view_model(model, ghost_bodies)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                self._mj = ViserMujocoScene(self.server, view, num_envs=1)
+            self._mj.camera_tracking_enabled = False  # we follow by moving the world (see module doc)
+            ghost_view = copy.deepcopy(model)
+            ghost_view.geom_rgba[:, :3] = np.array(GHOST_COLOR) / 255.0
+            ghost_view.geom_rgba[:, 3] = 1.0
+            for b in ghost_bodies:
+                geoms = [g for g in np.flatnonzero(model.geom_bodyid == b) if model.geom_rgba[g, 3] > 0]
+                if not geoms:
+                    continue
+                mesh = merge_geoms(ghost_view, geoms)
+                handle = self.server.scene.add_mesh_simple(
+                    f"/ghost/b{int(b)}",
+                    np.asarray(mesh.vertices, dtype=np.float32),
+                    np.asarray(mesh.faces, dtype=np.uint32),
+                    color=GHOST_COLOR,
+                    opacity=GHOST_OPACITY,
+                    cast_shadow=False,
+                    receive_shadow=False,
+                )
+                self._ghost.append((int(b), handle))
+            if self._ghost:
+                self._set_camera(ROLLOUT_CAMERA, clients=True)
+
+    def _set_camera(self, view: dict[str, tuple[float, float, float]], clients: bool) -> None:
+        """The camera new browsers start with; `clients`: also move the cameras of connected ones."""
+        self.server.initial_camera.position = view["position"]
+        self.server.initial_camera.look_at = view["look_at"]
+        if clients:
+            for client in self.server.get_clients().values():
+                with client.atomic():
+                    client.camera.position = view["position"]
+                    client.camera.look_at = view["look_at"]
+
+    def draw_bodies(self, xpos: np.ndarray, xmat: np.ndarray, root: np.ndarray, follow: bool) -> np.ndarray:
+        """Pose every body of the rollout model from MuJoCo's xpos [nbody, 3] / xmat [nbody, 9];
+        `root` [3] is kept over the origin when following."""
+        with self._lock:
+            if self._mj is None or self.mode != "rollout":
+                return np.zeros(3)
+            offset = np.zeros(3)
+            if follow:
+                offset[:2] = root[:2]
+            pos = xpos - offset
+            mats = xmat.reshape(-1, 3, 3)
+            with self.server.atomic():
+                self.world.position = -offset
+                if self._ghost:
+                    wxyz = np.zeros((len(mats), 4))
+                    for b, h in self._ghost:
+                        mujoco.mju_mat2Quat(wxyz[b], mats[b].reshape(9))
+                        h.position = pos[b]
+                        h.wxyz = wxyz[b]
+                self._mj.update_from_arrays(pos[None], mats[None])
+            self.server.flush()  # see draw()
+            return offset
+
+    def _clear_clip(self) -> None:
+        self.server.scene.remove_by_name("/world/root_path")
+        for h in self._contacts:
+            h.remove()
+        self._contacts = []
+        self.server.scene.remove_by_name("/bodies")
+        self.server.scene.remove_by_name("/fixed_bodies")
+        self._mj = None
+        self._char_path = None
+
+    def _clear_rollout(self) -> None:
+        for _, h in self._ghost:
+            h.remove()
+        self._ghost = []
+        self.server.scene.remove_by_name("/ghost")
+        self.server.scene.remove_by_name("/bodies")
+        self.server.scene.remove_by_name("/fixed_bodies")
+        self._mj = None
+        self._char_path = None
+        self.mode = "clip"
+
+    def end_rollout(self) -> None:
+        """Remove the rollout's model; the next clip builds its character again."""
+        with self._lock:
+            if self.mode == "rollout":
+                self._clear_rollout()
+                self._set_camera(CLIP_CAMERA, clients=False)

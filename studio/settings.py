@@ -11,6 +11,8 @@ from pathlib import Path
 from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
 
 DEFAULT_TRAINER = [sys.executable, "-m", "mimickit.cli", "train"]
+DEMO_CLIP = PROJECT_DATA_DIR / "motions" / "humanoid_demo_squat.pkl"
+DEMO_CHAR = PROJECT_DATA_DIR / "assets" / "humanoid" / "humanoid.xml"
 
 
 @dataclass
@@ -30,9 +32,16 @@ class Settings:
     stop_timeout_s: float = 60.0
     """How long a stopped run may take to write its checkpoint before it is killed."""
     start_viser: bool = True
+    startup_clip: Path | None = DEMO_CLIP
+    startup_char: Path | None = DEMO_CHAR
+    """The clip playing when the page first opens, on `startup_char` (guessed from the clip's frame
+    width when None); no clip: an empty scene."""
 
     def resolved(self) -> Settings:
         self.runs_dir = Path(self.runs_dir).expanduser().resolve()
+        for name in ("startup_clip", "startup_char"):
+            if getattr(self, name) is not None:
+                setattr(self, name, Path(getattr(self, name)).expanduser().resolve())
         if self.data_dir is not None:
             self.data_dir = Path(self.data_dir).expanduser().resolve()
         return self

@@ -46,6 +46,7 @@ async function loadLibrary() {
     api("GET", "/api/motions"), api("GET", "/api/characters"), api("GET", "/api/configs"),
   ]);
   fillLaunchForm();
+  fillFitTargets();
   renderLibrary();
 }
 
@@ -105,15 +106,26 @@ $("upload").addEventListener("change", async (ev) => {
 let scrubbing = false;
 
 let shownClip = null;
+let sceneMode = "clip";
 function applyState(s) {
-  if (s.clip && s.clip !== shownClip) {  // also after a reload: the player lives on the server
+  const rollout = s.mode === "rollout";
+  if (rollout !== (sceneMode === "rollout")) {  // switched between a clip and a rollout
+    shownClip = null;
+    rolloutView.reset();
+  }
+  sceneMode = rollout ? "rollout" : "clip";
+  $("rollout-panel").hidden = !rollout;
+  if (rollout) rolloutView.apply(s);
+  else if (s.clip && s.clip !== shownClip) {  // also after a reload: the player lives on the server
     shownClip = s.clip;
     $("clip-label").textContent = `${s.clip} on ${s.char}`;
   }
   const t = $("timeline");
   t.max = Math.max(0, s.num_frames - 1);
   if (!scrubbing) t.value = s.frame;
-  $("frame-label").textContent = s.clip ? `${s.frame}/${s.num_frames - 1} · ${s.time.toFixed(2)} s` : "–";
+  $("frame-label").textContent = rollout
+    ? `step ${s.rollout.shown.step} · ${s.time.toFixed(2)} s${s.rollout.live ? "" : ` · history ${s.frame}/${s.num_frames - 1}`}`
+    : s.clip ? `${s.frame}/${s.num_frames - 1} · ${s.time.toFixed(2)} s` : "–";
   $("play").textContent = s.playing ? "Pause" : "Play";
   $("loop").checked = s.loop;
   $("follow").checked = s.follow;
@@ -121,7 +133,59 @@ function applyState(s) {
 }
 
 async function refreshState() {
-  try { applyState(await api("GET", "/api/scene/state")); } catch (e) { /* scene off or server restarting */ }
+  let s;
+  try { s = await api("GET", "/api/scene/state"); } catch (e) { return; /* scene off or server restarting */ }
+  applyState(s);
+  if (s.mode === "rollout") await rolloutView.poll();
+}
+
+// ---------------------------------------------------------------- live rollout (state lives on the server)
+// The reward-term plot is fed by /api/scene/rollout/history (each recorded step since the last poll).
+const rolloutView = {
+  plot: null, key: null, lastStep: -1,
+  init() {
+    this.plot = new LinePlot($("rollout-plot"), "rollout, last 10 s:",
+      { window: 10, yRange: [0, 1], colors: { reward: "#ffffff" } });
+    this.plot.draw();
+  },
+  reset() { this.key = null; this.lastStep = -1; this.plot.clear(); },
+  apply(s) {
+    const r = s.rollout;
+    const key = `${r.checkpoint}|${r.reloads}`;
+    if (key !== this.key || r.step < this.lastStep) { this.reset(); this.key = key; }
+    const who = r.run_id !== null ? `run #${r.run_id} ${r.run_name || ""}` : r.checkpoint.split("/").slice(-2).join("/");
+    const saved = new Date(r.checkpoint_mtime * 1000).toLocaleTimeString();
+    const terms = Object.entries(r.reward_terms).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(" · ");
+    $("rollout-label").textContent = `${who} · checkpoint saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
+      ` · episode ${r.episode} · return ${r.episode_return.toFixed(2)} · ${terms}${r.error ? ` · ${r.error}` : ""}`;
+    $("clip-label").textContent = `rollout of ${r.checkpoint} in ${r.env_config} (ghost: the reference clip)`;
+    this.plot.marker = r.live ? null : s.time;
+  },
+  async poll() {
+    let h;
+    try { h = await api("GET", `/api/scene/rollout/history?since=${this.lastStep}`); } catch (e) { return; }
+    for (const row of h.rows) {
+      if (row.step <= this.lastStep) continue;
+      this.plot.add("reward", row.time, row.reward);
+      for (const [k, v] of Object.entries(row.terms)) this.plot.add(k, row.time, v);
+      this.lastStep = row.step;
+    }
+    this.plot.draw();
+  },
+};
+rolloutView.init();
+$("rollout-reset").addEventListener("click", () => playerCommand("rollout/reset"));
+$("rollout-close").addEventListener("click", () => playerCommand("rollout/close"));
+
+async function loadRollout(body) {
+  $("checkpoint-error").textContent = "";
+  $("clip-label").textContent = "building the rollout (env, policy, checkpoint)…";
+  try {
+    applyState(await api("POST", "/api/scene/load_rollout", body));
+  } catch (e) {
+    $("checkpoint-error").textContent = e.message;
+    $("clip-label").textContent = `cannot roll out: ${e.message}`;
+  }
 }
 
 const playerCommand = async (path, body) => applyState(await api("POST", `/api/scene/${path}`, body));
@@ -182,6 +246,7 @@ $("launch").addEventListener("submit", async (ev) => {
 async function refreshRuns() {
   let runs;
   try { runs = await api("GET", "/api/runs"); } catch (e) { return; }
+  refreshCheckpoints();
   const list = $("run-list");
   list.replaceChildren(...runs.slice().reverse().map(runItem));
   if (selectedRun !== null) updateConsole();
@@ -201,6 +266,8 @@ function runItem(run) {
     el("div", { class: "actions" },
       act("Stop", () => runAction(run, "stop"), active && run.status !== "stopping"),
       act("Resume", () => runAction(run, "resume"), finished && !!run.checkpoint),
+      act("Rollout", () => loadRollout({ run_id: run.id }), !!run.checkpoint),
+      act("Inspect", () => inspectCheckpoint(run.checkpoint), !!run.checkpoint),
       act("Delete", () => deleteRun(run), !active)));
   return item;
 }
@@ -245,6 +312,74 @@ function addRow(row) {
     redrawPending = true;
     requestAnimationFrame(() => { redrawPending = false; Object.values(plots).forEach((p) => p.draw()); });
   }
+}
+
+// ---------------------------------------------------------------- checkpoints: list, inspect, roll out
+async function refreshCheckpoints() {
+  let list;
+  try { list = await api("GET", "/api/checkpoints"); } catch (e) { return; }
+  const sel = $("checkpoint"), keep = sel.value;
+  const opts = list.map((c) => el("option", { value: c.path },
+    `${c.run_id !== null ? `#${c.run_id} ${c.run_name} · ` : ""}${c.path.split("/").slice(-2).join("/")} · ${new Date(c.mtime * 1000).toLocaleTimeString()}`));
+  sel.replaceChildren(...(opts.length ? opts : [el("option", { value: "" }, "(no checkpoints yet)")]));
+  if (keep && list.some((c) => c.path === keep)) sel.value = keep;
+}
+
+function fillFitTargets() {
+  const sel = $("fit-target"), keep = sel.value;
+  sel.replaceChildren(el("option", { value: "" }, "fits… (env config or character)"),
+    ...library.configs.envs.map((c) => el("option", { value: `env_config=${c.path}` }, `env: ${c.path}`)),
+    ...library.characters.map((c) => el("option", { value: `char=${c.path}` }, `character: ${c.path}`)));
+  sel.value = keep;
+}
+
+const chosenCheckpoint = () => $("checkpoint-path").value.trim() || $("checkpoint").value;
+$("rollout-button").addEventListener("click", () => {
+  const path = chosenCheckpoint();
+  if (path) loadRollout({ checkpoint: path });
+});
+$("inspect-button").addEventListener("click", () => inspectCheckpoint(chosenCheckpoint()));
+$("fit-target").addEventListener("change", () => { if (lastInspected) inspectCheckpoint(lastInspected); });
+
+let lastInspected = null;
+async function inspectCheckpoint(path) {
+  if (!path) return;
+  lastInspected = path;
+  const target = $("fit-target").value;
+  const [key, value] = target ? [target.slice(0, target.indexOf("=")), target.slice(target.indexOf("=") + 1)] : [null, null];
+  const q = new URLSearchParams({ path });
+  if (key) q.set(key, value);
+  $("checkpoint-error").textContent = "";
+  $("inspect").textContent = target ? "inspecting (building the env to compare sizes)…" : "inspecting…";
+  try {
+    renderInspection(await api("GET", `/api/checkpoints/inspect?${q}`));
+  } catch (e) {
+    $("inspect").textContent = "";
+    $("checkpoint-error").textContent = e.message;
+  }
+}
+
+function renderInspection(c) {
+  const f = (v, d = 3) => (v === null || v === undefined ? "–" : Number(v).toFixed(d));
+  const lines = [
+    `${c.display_path}`,
+    `agent ${c.agent} (${c.agent_reason})`,
+    `observations ${c.obs_size} · actions ${c.action_size} · ${(c.num_params / 1e6).toFixed(2)} M parameters · ${(c.size_bytes / 1e6).toFixed(1)} MB`,
+  ];
+  for (const [net, layers] of Object.entries(c.networks)) {
+    lines.push(`${net}: ${layers.map((l) => (l.in !== undefined ? `${l.in}→${l.out}` : `[${l.shape.join("×")}]`)).join(", ")}`);
+  }
+  for (const [name, n] of Object.entries(c.normalizers)) {
+    lines.push(`${name} normaliser: count ${n.count} · mean |μ| ${f(n.mean_abs_mean)} · mean σ ${f(n.mean_std)}` +
+      ` · μ ∈ [${f(n.mean_min, 2)}, ${f(n.mean_max, 2)}] · σ ∈ [${f(n.std_min, 4)}, ${f(n.std_max, 2)}]`);
+  }
+  const t = c.train_state;
+  if (t) lines.push(`trained: iteration ${t.iteration} · ${t.samples} samples (${t.samples_per_iteration ?? "–"}/iteration) · ${f(t.wall_time_hours * 60, 1)} min` +
+    (t.test ? ` · test return ${f(t.test.mean_return, 2)}` : ""));
+  else lines.push("no _train_state (a reference or exported checkpoint)");
+  const box = $("inspect");
+  box.replaceChildren(lines.join("\n"));
+  if (c.fit) box.append("\n", el("span", { class: c.fit.fits ? "fits" : "misfit", "data-fits": String(c.fit.fits) }, c.fit.message));
 }
 
 async function updateConsole() {

@@ -5,10 +5,14 @@
 const PLOT_COLORS = ["#f0a830", "#5a9ae0", "#3cc878", "#e0564f", "#b77fe0", "#40c8c8", "#e07fb0", "#a0a060"];
 
 class LinePlot {
-  constructor(canvas, title) {
+  // options: window (keep only the last `window` x units), yRange ([lo, hi], fixed axis),
+  // colors ({name: color}); `marker` (an x value) draws a vertical line there.
+  constructor(canvas, title, options = {}) {
     this.canvas = canvas;
     this.title = title;
+    this.options = options;
     this.series = new Map(); // name -> [[x, y], ...]
+    this.marker = null;
   }
 
   clear() {
@@ -19,7 +23,13 @@ class LinePlot {
   add(name, x, y) {
     if (!Number.isFinite(x) || !Number.isFinite(y)) return;
     if (!this.series.has(name)) this.series.set(name, []);
-    this.series.get(name).push([x, y]);
+    const pts = this.series.get(name);
+    pts.push([x, y]);
+    const w = this.options.window;
+    if (w && pts[0][0] < x - w * 1.5) {  // trim now and then, not on every point
+      const keep = pts.findIndex(([px]) => px >= x - w);
+      pts.splice(0, keep);
+    }
   }
 
   bounds() {
@@ -30,6 +40,9 @@ class LinePlot {
         y0 = Math.min(y0, y); y1 = Math.max(y1, y);
       }
     }
+    const w = this.options.window;
+    if (w && Number.isFinite(x1)) x0 = Math.max(x0, x1 - w);
+    if (this.options.yRange) [y0, y1] = this.options.yRange;
     if (x0 === x1) { x0 -= 1; x1 += 1; }
     if (y0 === y1) { y0 -= 1; y1 += 1; }
     return [x0, x1, y0, y1];
@@ -56,11 +69,20 @@ class LinePlot {
     g.beginPath(); g.moveTo(pad.l, pad.t); g.lineTo(pad.l, h - pad.b); g.lineTo(w - pad.r, h - pad.b); g.stroke();
     g.fillText(fmt(y1), 2, pad.t + 4); g.fillText(fmt(y0), 2, h - pad.b);
     g.fillText(fmt(x1), w - pad.r - 40, h - 3);
-    let i = 0, legendX = 60;
+    if (this.marker !== null && this.marker >= x0 && this.marker <= x1) {
+      g.strokeStyle = "#d8dce4"; g.setLineDash([3, 3]); g.beginPath();
+      g.moveTo(sx(this.marker), pad.t); g.lineTo(sx(this.marker), h - pad.b); g.stroke(); g.setLineDash([]);
+    }
+    let i = 0, legendX = Math.max(60, g.measureText(this.title).width - 24);
     for (const [name, pts] of this.series) {
-      const color = PLOT_COLORS[i++ % PLOT_COLORS.length];
+      const color = (this.options.colors && this.options.colors[name]) || PLOT_COLORS[i % PLOT_COLORS.length];
+      i++;
       g.strokeStyle = color; g.lineWidth = 1.5; g.beginPath();
-      pts.forEach(([x, y], k) => (k ? g.lineTo(sx(x), sy(y)) : g.moveTo(sx(x), sy(y))));
+      let started = false;
+      for (const [x, y] of pts) {
+        if (x < x0) continue;
+        if (started) g.lineTo(sx(x), sy(y)); else { g.moveTo(sx(x), sy(y)); started = true; }
+      }
       g.stroke();
       g.fillStyle = color;
       const label = name.replace("reward_terms.", "");

@@ -1,15 +1,20 @@
-"""Scene commands: load a clip on a character, play, pause, step, seek, and the player's state."""
+"""Scene commands: load a clip on a character or a rollout of a checkpoint; play, pause, step, seek,
+and the scene's state. The playback commands drive whichever is loaded (`mode`: clip or rollout)."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Request
+from fastapi import APIRouter, HTTPException, Query, Request
 from pydantic import BaseModel, Field
 
+from mimickit.util.errors import MimicKitError
 from studio.api import need, studio_of
 from studio.clip_pose import pose_clip
 from studio.player import Player
+from studio.rollout import RolloutPlayer, source_for_checkpoint
+from studio.runs import CHECKPOINT
 from studio.security import confine
 
 router = APIRouter(prefix="/scene", tags=["scene"])
@@ -19,6 +24,15 @@ class LoadClip(BaseModel):
     path: str = Field(description="a clip: `data/motions/...` or a path inside the data/runs folders")
     char: str | None = Field(None, description="an MJCF character; guessed from the clip's frame width if absent")
     play: bool = Field(False, description="start playing at once")
+
+
+class LoadRollout(BaseModel):
+    run_id: int | None = Field(None, description="a run: its `model.pt` and the configs copied into its folder")
+    checkpoint: str | None = Field(None, description="a checkpoint file inside the data or runs folders")
+    env_config: str | None = Field(None, description="env yaml, when the checkpoint has none beside it")
+    agent_config: str | None = Field(None, description="agent yaml, when the checkpoint has none beside it")
+    engine_config: str | None = Field(None, description="engine yaml (default: the one beside the checkpoint)")
+    play: bool = Field(True, description="start stepping at once")
 
 
 class Step(BaseModel):
@@ -37,9 +51,24 @@ class Configure(BaseModel):
 
 
 def _player(request: Request) -> Player:
+    """The clip player (for loading clips)."""
     player = studio_of(request).player
     need(player, "the 3D scene")
     return player
+
+
+def _target(request: Request) -> Player | RolloutPlayer:
+    """What the playback commands drive: the rollout while one is loaded, else the clip player."""
+    target = studio_of(request).active()
+    need(target, "the 3D scene")
+    return target
+
+
+def _rollout(request: Request) -> RolloutPlayer:
+    rp = studio_of(request).rollout
+    if rp is None:
+        raise HTTPException(409, "no rollout is loaded (POST /api/scene/load_rollout)")
+    return rp
 
 
 @router.post("/load_clip")
@@ -57,59 +86,135 @@ def load_clip(body: LoadClip, request: Request) -> dict[str, Any]:
         if char_path is None:
             raise HTTPException(400, f"{body.path}: no character fits this clip; name one with `char`")
     pose = pose_clip(clip, confine(char_path, roots))
+    studio.end_rollout()
     player.load(pose, play=body.play)
     return player.snapshot()
 
 
+@router.post("/load_rollout")
+def load_rollout(body: LoadRollout, request: Request) -> dict[str, Any]:
+    """Roll out a run's checkpoint (`run_id`) or a checkpoint file: its deterministic policy in one
+    MuJoCo env built from the run's copied configs, stepped at the control rate, with the reference
+    clip as a ghost. 400 with one message when the checkpoint does not fit (another character or
+    observation size) or is not a checkpoint. The rollout reloads the file when it changes."""
+    studio = studio_of(request)
+    s = studio.settings
+    if (body.run_id is None) == (body.checkpoint is None):
+        raise HTTPException(422, "give either `run_id` or `checkpoint`")
+    run_name = None
+    if body.run_id is not None:
+        run = studio.runs.get(body.run_id)  # 404 when there is no such run
+        checkpoint = Path(run.out_dir) / CHECKPOINT
+        if not checkpoint.is_file():
+            raise HTTPException(
+                400, f"run {run.id} has no checkpoint yet ({CHECKPOINT} appears after its first iteration)"
+            )
+        run_name = run.name
+    else:
+        checkpoint = confine(body.checkpoint, [*s.data_dirs, s.runs_dir])
+    roots = s.readable_roots
+    configs = {
+        k: confine(v, roots) if (v := getattr(body, k)) else None
+        for k in ("env_config", "agent_config", "engine_config")
+    }
+    try:
+        source = source_for_checkpoint(checkpoint, run_id=body.run_id, run_name=run_name, **configs)
+        if source.data_dir is None:
+            source.data_dir = s.data_dir
+        rp = studio.load_rollout(source, play=body.play)
+    except MimicKitError:
+        raise
+    except Exception as e:  # noqa: BLE001 - a broken config is the user's to fix: one line, not a traceback
+        first = (str(e).strip().splitlines() or [""])[0]
+        raise HTTPException(400, f"cannot roll out {checkpoint}: {e.__class__.__name__}: {first}") from None
+    return rp.snapshot()
+
+
+@router.get("/rollout/history")
+def rollout_history(
+    request: Request,
+    since: int = Query(-1, description="only steps after this one"),
+    limit: int = Query(2000, gt=0, le=10000),
+) -> dict[str, Any]:
+    """The loaded rollout's recorded steps: reward and each unweighted reward term per step (the
+    last 60 s are kept), for plotting; poll with `since` = the last step received."""
+    rp = _rollout(request)
+    snap = rp.snapshot()["rollout"]
+    return {
+        "step": snap["step"],
+        "reward_weights": snap["reward_weights"],
+        "rows": rp.history_rows(since, limit),
+    }
+
+
+@router.post("/rollout/reset")
+def rollout_reset(request: Request) -> dict[str, Any]:
+    """Start a new episode of the loaded rollout now."""
+    rp = _rollout(request)
+    rp.reset()
+    return rp.snapshot()
+
+
+@router.post("/rollout/close")
+def rollout_close(request: Request) -> dict[str, Any]:
+    """Stop the rollout and go back to the clip player (empty until a clip is loaded)."""
+    studio = studio_of(request)
+    studio.end_rollout()
+    target = studio.active()
+    return target.snapshot() if target else {"mode": "clip"}
+
+
 @router.post("/play")
 def play(request: Request) -> dict[str, Any]:
-    player = _player(request)
-    player.play()
-    return player.snapshot()
+    target = _target(request)
+    target.play()
+    return target.snapshot()
 
 
 @router.post("/pause")
 def pause(request: Request) -> dict[str, Any]:
-    player = _player(request)
-    player.pause()
-    return player.snapshot()
+    target = _target(request)
+    target.pause()
+    return target.snapshot()
 
 
 @router.post("/toggle")
 def toggle(request: Request) -> dict[str, Any]:
     """Play/pause, as the Enter key."""
-    player = _player(request)
-    player.toggle()
-    return player.snapshot()
+    target = _target(request)
+    target.toggle()
+    return target.snapshot()
 
 
 @router.post("/step")
 def step(request: Request, body: Step | None = None) -> dict[str, Any]:
     """Pause and move by `frames` (default 1, as the Space key)."""
-    player = _player(request)
-    player.step((body or Step()).frames)
-    return player.snapshot()
+    target = _target(request)
+    target.step((body or Step()).frames)
+    return target.snapshot()
 
 
 @router.post("/seek")
 def seek(body: Seek, request: Request) -> dict[str, Any]:
-    player = _player(request)
+    target = _target(request)
     if body.frame is None and body.time is None:
         raise HTTPException(422, "give `frame` or `time`")
-    player.seek(frame=body.frame, time_s=body.time)
-    return player.snapshot()
+    target.seek(frame=body.frame, time_s=body.time)
+    return target.snapshot()
 
 
 @router.post("/configure")
 def configure(body: Configure, request: Request) -> dict[str, Any]:
     """Speed, loop and camera follow."""
-    player = _player(request)
-    player.configure(speed=body.speed, loop=body.loop, follow=body.follow)
-    return player.snapshot()
+    target = _target(request)
+    target.configure(speed=body.speed, loop=body.loop, follow=body.follow)
+    return target.snapshot()
 
 
 @router.get("/state")
 def state(request: Request) -> dict[str, Any]:
-    """Clip, character, frame, time, playing, speed, loop, follow, scene updates sent, the drawn
-    root position and which feet touch the ground."""
-    return _player(request).snapshot()
+    """`mode` (clip or rollout), frame, num_frames, time, playing, speed, loop, follow, scene updates
+    sent and the drawn root position. Clip mode: clip, character and which feet touch the ground.
+    Rollout mode: `rollout` with the checkpoint and its mtime, reloads, the step, the episode and its
+    return, the last reward and reward terms, and the frame shown (the timeline is the history)."""
+    return _target(request).snapshot()

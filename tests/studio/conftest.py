@@ -1,11 +1,15 @@
 """The studio as a user runs it: `mimickit-studio serve` in a subprocess on free ports, talked to over
-HTTP. Runs use `fake_trainer.py`, which keeps the `mimickit train` contract in a fraction of a second.
+HTTP. Runs use `fake_trainer.py`, which keeps the `mimickit train` contract in a fraction of a second
+(one slow test uses the real `mimickit train`). Rollouts and checkpoint inspection use checkpoints of
+a freshly built (untrained) agent, written the way the trainer writes them, beside copies of its configs.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -17,20 +21,25 @@ from pathlib import Path
 import httpx
 import pytest
 
+from mimickit.util.paths import PROJECT_DATA_DIR
 from tests.conftest import test_data_dir
 
 FAKE_TRAINER = Path(__file__).with_name("fake_trainer.py")
 TRAINER = shlex.join([sys.executable, str(FAKE_TRAINER)])
+REAL_TRAINER = shlex.join([sys.executable, "-m", "mimickit.cli", "train"])
 START_TIMEOUT_S = 60.0
+ENV_YAML = PROJECT_DATA_DIR / "envs" / "deepmimic_humanoid_env.yaml"
+AGENT_YAML = PROJECT_DATA_DIR / "agents" / "deepmimic_humanoid_ppo_agent.yaml"
+ENGINE_YAML = PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml"
 
 
 class StudioProcess:
     """One `mimickit-studio serve` subprocess; `url` is the one line it prints."""
 
-    def __init__(self, runs_dir: Path, data_dir: Path | None = None, *extra: str) -> None:
+    def __init__(self, runs_dir: Path, data_dir: Path | None = None, *extra: str, trainer: str = TRAINER) -> None:
         self.runs_dir = runs_dir
         argv = [sys.executable, "-m", "studio.cli", "serve", "--port", "0", "--viser-port", "0"]
-        argv += ["--runs-dir", str(runs_dir), "--trainer", TRAINER, *extra]
+        argv += ["--runs-dir", str(runs_dir), "--trainer", trainer, *extra]
         if data_dir is not None:
             argv += ["--data-dir", str(data_dir)]
         self.stderr_path = runs_dir / "server.stderr.log"
@@ -102,3 +111,46 @@ def studio(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
     server = StudioProcess(runs_dir, test_data_dir())
     yield server
     server.stop()
+
+
+def write_checkpoint_dir(folder: Path, env_yaml: str | None = None, save_model: bool = True) -> Path:
+    """A run-like folder: the configs a trainer copies (`env_yaml` text replaces the demo env's) and a
+    `model.pt` of a fresh PPO agent for them, saved with its train state as `mimickit train` saves it."""
+    from mimickit.envs.env_builder import build_env
+    from mimickit.learning.agent_builder import build_agent
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "env_config.yaml").write_text(env_yaml if env_yaml is not None else ENV_YAML.read_text())
+    shutil.copyfile(AGENT_YAML, folder / "agent_config.yaml")
+    shutil.copyfile(ENGINE_YAML, folder / "engine_config.yaml")
+    (folder / "args.json").write_text(json.dumps({"mode": ["train"], "out_dir": [str(folder)]}))
+    if not save_model:
+        return folder / "model.pt"
+    env = build_env(folder / "env_config.yaml", folder / "engine_config.yaml", 1)
+    agent = build_agent(folder / "agent_config.yaml", env, verbose=False)
+    agent.save(folder / "model.pt")
+    env.engine.close()
+    return folder / "model.pt"
+
+
+def smaller_obs_env_yaml() -> str:
+    """The demo env with one target frame observed instead of three: another observation size."""
+    text = ENV_YAML.read_text()
+    assert "tar_obs_steps: [1, 2, 3]" in text
+    return text.replace("tar_obs_steps: [1, 2, 3]", "tar_obs_steps: [1]")
+
+
+@pytest.fixture(scope="session")
+def demo_checkpoint(studio: StudioProcess) -> Path:
+    """A checkpoint with its configs in the session server's runs folder."""
+    return write_checkpoint_dir(studio.runs_dir / "ckpt-demo")
+
+
+@pytest.fixture(scope="session")
+def misfit_checkpoint(studio: StudioProcess) -> Path:
+    """A checkpoint trained on another observation size, beside the demo env's configs."""
+    other = write_checkpoint_dir(studio.runs_dir / "ckpt-other-obs", smaller_obs_env_yaml())
+    folder = studio.runs_dir / "ckpt-misfit"
+    write_checkpoint_dir(folder, save_model=False)
+    shutil.copyfile(other, folder / "model.pt")
+    return folder / "model.pt"

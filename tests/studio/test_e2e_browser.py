@@ -1,10 +1,12 @@
 """End to end in real Chromium (Playwright, the apt browser): open the dashboard, load humanoid_walk,
-play, pause, step, scrub, and launch and stop a run from the page. The server's scene state is the
+play, pause, step, scrub, launch and stop a run from the page, and roll out a checkpoint with its
+ghost and reward-term plot, and inspect it. The server's scene state is the
 judge of what the clicks did; screenshots of the embedded viser canvas check that the character is
 drawn (not a blank canvas) and moves. Headless Chromium renders WebGL in software (~1 fps), hence
 the waits before each screenshot.
 
-Set STUDIO_UPDATE_SCREENSHOTS=1 to write the dashboard screenshot to docs/studio_dashboard.png.
+Set STUDIO_UPDATE_SCREENSHOTS=1 to write the screenshots to docs/studio_dashboard.png and
+docs/studio_rollout.png.
 """
 
 from __future__ import annotations
@@ -117,6 +119,53 @@ def test_launch_and_stop_a_run_from_the_page(page, studio: StudioProcess, tmp_pa
     item.locator(".status.stopped").wait_for(timeout=10_000)
     page.locator(f"[data-run-id='{run['id']}'] button[data-action=delete]").click()
     wait_for(lambda: studio.get(f"/api/runs/{run['id']}").status_code == 404, what="deleted after confirm")
+
+
+def test_rollout_in_the_browser(page, studio: StudioProcess, demo_checkpoint: Path, tmp_path: Path) -> None:
+    page.reload()
+    page.wait_for_selector(f"#checkpoint option[value='{demo_checkpoint}']", state="attached", timeout=15_000)
+    page.select_option("#checkpoint", value=str(demo_checkpoint))
+    page.click("#rollout-button")
+    s = wait_for(lambda: (st := state(studio))["mode"] == "rollout" and st, 30, "the rollout to load")
+    assert s["rollout"]["checkpoint"] == str(demo_checkpoint)
+    wait_for(lambda: state(studio)["rollout"]["step"] > 30, 15, "the rollout to step")
+    page.locator("#rollout-panel").wait_for(state="visible")
+    # The dashboard's plot: the reward and the five reward terms, fed by the history endpoint.
+    page.wait_for_selector("#rollout-plot[data-series='6']", timeout=15_000)
+    assert "episode" in page.locator("#rollout-label").inner_text()
+
+    page.select_option("#fit-target", value="env_config=data/envs/deepmimic_humanoid_env.yaml")
+    page.click("#inspect-button")
+    page.wait_for_selector("#inspect [data-fits=true]", timeout=30_000)
+    text = page.locator("#inspect").inner_text()
+    assert "agent PPO" in text and "observations 464 · actions 28" in text
+
+    # Pause and step with the page's controls: they drive the rollout now.
+    page.click("#play")
+    wait_for(lambda: not state(studio)["playing"], what="pause")
+    step = state(studio)["rollout"]["step"]
+    page.click("#step")
+    wait_for(lambda: state(studio)["rollout"]["step"] == step + 1, what="one simulated step")
+    page.click("#play")
+    wait_for(lambda: state(studio)["playing"], what="play again")
+
+    _close_viser_toast(page)
+    time.sleep(RENDER_WAIT_S)
+    pixels = np.asarray(Image.open(io.BytesIO(page.locator("#scene").screenshot())).convert("RGB"), dtype=np.int32)
+    r, g, b = pixels[..., 0], pixels[..., 1], pixels[..., 2]
+    ghost = (g > r + 25) & (g > b + 10) & (g > 90)  # translucent green over the dark ground
+    coral = (r > g + 50) & (r > b + 50)  # the character's right side
+    blue = (b > r + 50) & (b > g + 10) & (b > 120)  # its left side
+    assert ghost.mean() > 0.001, "no ghost (reference character) in the picture"
+    assert coral.mean() > 0.0005 and blue.mean() > 0.0005, "no character in the picture"
+    shot = PROJECT_ROOT / "docs" / "studio_rollout.png"
+    if os.environ.get("STUDIO_UPDATE_SCREENSHOTS") != "1":
+        shot = tmp_path / "studio_rollout.png"
+    page.screenshot(path=str(shot))
+
+    page.click("#rollout-close")
+    wait_for(lambda: state(studio)["mode"] == "clip", what="back to clips")
+    page.locator("#rollout-panel").wait_for(state="hidden")
 
 
 def _close_viser_toast(page) -> None:

@@ -73,3 +73,23 @@ def test_other_characters_load(studio: StudioProcess, test_data) -> None:
     for clip in ("data/motions/go2/go2_trot.pkl", "data/motions/humanoid_demo_squat.pkl"):
         s = command(studio, "load_clip", {"path": clip})
         assert s["num_frames"] > 0 and s["frame"] == 0
+
+
+def test_startup_plays_the_demo_clip_and_clip_none_starts_empty(tmp_path) -> None:
+    """What a new user sees first (`make studio`): the project's humanoid playing the demo clip."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    server = StudioProcess(tmp_path / "a")
+    try:
+        state = server.get("/api/scene/state").json()
+        assert state["clip"].endswith("data/motions/humanoid_demo_squat.pkl")
+        assert state["char"].endswith("data/assets/humanoid/humanoid.xml")
+        assert state["playing"] and state["num_frames"] > 1
+        assert wait_for(lambda: server.get("/api/scene/state").json()["frame"] != state["frame"], 10)
+    finally:
+        server.stop()
+    server = StudioProcess(tmp_path / "b", None, "--clip", "none")
+    try:
+        assert server.get("/api/scene/state").json().get("clip") is None
+    finally:
+        server.stop()

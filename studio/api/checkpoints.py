@@ -1,0 +1,95 @@
+"""Checkpoint endpoints: list the checkpoint files of the runs and data folders, and inspect one
+(agent type, network shapes, normaliser statistics, sizes, training state, and whether it fits an env
+config or a character)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from fastapi import APIRouter, HTTPException, Query, Request
+
+from mimickit.util.errors import MimicKitError
+from studio.api import studio_of
+from studio.checkpoints import check_fit_char, check_fit_env, configs_beside, inspect_checkpoint
+from studio.rollout import run_data_dir
+from studio.security import confine, display_path
+
+router = APIRouter(prefix="/checkpoints", tags=["checkpoints"])
+MAX_LISTED = 500
+
+
+@router.get("")
+def list_checkpoints(request: Request) -> list[dict[str, Any]]:
+    """`.pt` files in the runs folder (each run's `model.pt`, `int_models/`) and in the data
+    folders' `models/`, newest first, with the run they belong to."""
+    studio = studio_of(request)
+    s = studio.settings
+    runs_by_dir = {str(Path(r.out_dir).resolve()): r for r in studio.registry.list() if r.out_dir}
+    found: list[Path] = []
+    if s.runs_dir.is_dir():
+        for pattern in ("*/*.pt", "*/int_models/*.pt"):
+            found += s.runs_dir.glob(pattern)
+    for d in s.data_dirs:
+        if (d / "models").is_dir():
+            found += (d / "models").glob("**/*.pt")
+    out = []
+    for f in found:
+        try:
+            st = f.stat()
+        except OSError:
+            continue
+        run_dir = f.parent.parent if f.parent.name == "int_models" else f.parent
+        run = runs_by_dir.get(str(run_dir.resolve()))
+        out.append({
+            "path": display_path(f, s.data_dirs),
+            "size_bytes": st.st_size,
+            "mtime": st.st_mtime,
+            "run_id": run.id if run else None,
+            "run_name": run.name if run else None,
+            "has_configs": bool(configs_beside(f)),
+        })  # fmt: skip
+    out.sort(key=lambda c: c["mtime"], reverse=True)
+    return out[:MAX_LISTED]
+
+
+@router.get("/inspect")
+def inspect(
+    request: Request,
+    path: str = Query(..., description="a checkpoint inside the data or runs folders"),
+    env_config: str | None = Query(None, description="check that it fits this env config (builds one env)"),
+    engine_config: str | None = Query(None, description="engine yaml for that check (default: the run's)"),
+    char: str | None = Query(None, description="check that it fits this character's DoFs (the action size)"),
+) -> dict[str, Any]:
+    """Agent type (from `_train_state`, else the key names), network layer shapes, normaliser
+    statistics (count, mean |μ|, mean σ, per-dimension min/max), observation and action sizes,
+    samples per iteration; `fit` with one message when `env_config` or `char` is given."""
+    studio = studio_of(request)
+    s = studio.settings
+    ckpt = confine(path, [*s.data_dirs, s.runs_dir])
+    t0 = time.perf_counter()
+    info = inspect_checkpoint(ckpt)
+    info["display_path"] = display_path(ckpt, s.data_dirs)
+    fit = None
+    target = env_config or char
+    env_file = confine(env_config, s.readable_roots) if env_config else None
+    char_file = confine(char, s.readable_roots) if char and not env_config else None
+    engine = confine(engine_config, s.readable_roots) if engine_config else None
+    try:
+        if env_file is not None:
+            beside = configs_beside(ckpt)
+            if engine is None and "engine_config.yaml" in beside:
+                engine = Path(beside["engine_config.yaml"])
+            data_dir = (run_data_dir(Path(beside["env_config.yaml"]).parent) if beside else None) or s.data_dir
+            fit = check_fit_env(ckpt, env_file, engine, data_dir, env_config)
+        elif char_file is not None:
+            fit = check_fit_char(ckpt, char_file, char)
+    except MimicKitError as e:
+        fit = {"target": target, "fits": False, "message": f"cannot build {target}: {e}"}
+    except Exception as e:  # noqa: BLE001 - a broken config: one line, not a traceback
+        first = (str(e).strip().splitlines() or [""])[0]
+        raise HTTPException(400, f"cannot check {target}: {e.__class__.__name__}: {first}") from None
+    info["fit"] = fit
+    info["inspect_ms"] = round((time.perf_counter() - t0) * 1000, 1)
+    return info

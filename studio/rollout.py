@@ -1,0 +1,481 @@
+"""Live rollouts: a checkpoint's deterministic policy driving one MuJoCo env at real time.
+
+`Rollout` is the simulation: the env built from a run's copied configs (`env_config.yaml`,
+`engine_config.yaml`, `agent_config.yaml` in its out_dir; `data_dir` from its `args.json`) with one env
+and `visualize=True`, so that the DeepMimic env adds its reference character (the "ghost", visual
+only) to the same MuJoCo model and poses it from the clip every step. Each step is recorded in a ring
+buffer (qpos, reward, each unweighted reward term), the last `HISTORY_S` seconds; an episode that
+ends is reset at once; a newer checkpoint file (polled mtime) is loaded and starts a new episode.
+
+`RolloutPlayer` runs a `Rollout` in a worker thread at the env's control rate (× speed) and draws it
+in the studio's scene. Its commands mirror the clip player's (play, pause, step, seek, configure), so
+the REST scene commands and the keys drive whichever is loaded: the timeline is the recorded history;
+seeking or stepping back shows a recorded frame (the simulation waits); play goes back to the live
+end and goes on simulating; step at the live end simulates one more step.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+import warnings
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+
+from mimickit.util.errors import MimicKitError
+from studio.checkpoints import configs_beside, data_dir_for_build
+from studio.scene import StudioScene
+
+HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
+RELOAD_POLL_S = 1.0  # how often the checkpoint's mtime is checked
+MAX_STEP_FRAMES = 300  # one `step` command simulates at most this many steps
+MIN_SPEED, MAX_SPEED = 0.05, 4.0
+GHOST_NAME = "_reference/"  # DeepMimicEnv names its visual reference object "reference"
+
+
+@dataclass
+class RolloutSource:
+    """What a rollout is built from."""
+
+    checkpoint: Path
+    env_config: Path
+    agent_config: Path
+    engine_config: Path | None = None
+    data_dir: Path | None = None
+    run_id: int | None = None
+    run_name: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "checkpoint": str(self.checkpoint),
+            "env_config": str(self.env_config),
+            "agent_config": str(self.agent_config),
+            "engine_config": str(self.engine_config) if self.engine_config else None,
+            "data_dir": str(self.data_dir) if self.data_dir else None,
+            "run_id": self.run_id,
+            "run_name": self.run_name,
+        }
+
+
+def source_for_checkpoint(
+    checkpoint: Path,
+    *,
+    env_config: Path | None = None,
+    agent_config: Path | None = None,
+    engine_config: Path | None = None,
+    data_dir: Path | None = None,
+    run_id: int | None = None,
+    run_name: str | None = None,
+) -> RolloutSource:
+    """The configs a trainer copied beside `checkpoint` (its folder, or the parent of `int_models/`),
+    unless given; MimicKitError when there are none."""
+    beside = configs_beside(checkpoint)
+    env = env_config or (Path(beside["env_config.yaml"]) if "env_config.yaml" in beside else None)
+    agent = agent_config or (Path(beside["agent_config.yaml"]) if "agent_config.yaml" in beside else None)
+    engine = engine_config or (Path(beside["engine_config.yaml"]) if "engine_config.yaml" in beside else None)
+    if env is None or agent is None:
+        missing = " and ".join(n for n, v in (("env_config", env), ("agent_config", agent)) if v is None)
+        raise MimicKitError(
+            f"{checkpoint}: no {missing} beside it (a run folder has env_config.yaml and agent_config.yaml);"
+            f" name the {missing} to roll it out"
+        )
+    if data_dir is None and beside:
+        data_dir = run_data_dir(Path(beside["env_config.yaml"]).parent)
+    return RolloutSource(checkpoint, env, agent, engine, data_dir, run_id, run_name)
+
+
+def run_data_dir(run_dir: Path) -> Path | None:
+    """`--data_dir` of the run, from the args.json the trainer wrote."""
+    try:
+        args = json.loads((run_dir / "args.json").read_text())
+    except (OSError, ValueError):
+        return None
+    value = args.get("data_dir") if isinstance(args, dict) else None
+    if isinstance(value, list):
+        value = value[0] if value else None
+    return Path(value) if value else None
+
+
+@dataclass(slots=True)
+class Frame:
+    """One recorded step. `reward`/`terms` are None for the pose an episode starts from."""
+
+    step: int  # simulation steps since the rollout was built
+    episode: int
+    episode_step: int
+    qpos: np.ndarray
+    reward: float | None
+    terms: dict[str, float] | None
+    episode_return: float
+    done: int = 0  # DoneFlags of the step that ended an episode (1 fail, 2 success, 3 time)
+
+
+@dataclass
+class EpisodeSummary:
+    episode: int
+    steps: int
+    ret: float
+    done: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {"episode": self.episode, "steps": self.steps, "return": self.ret, "done": self.done}
+
+
+class Rollout:
+    """The policy of `source.checkpoint` in one env (see the module docstring). Not thread-safe."""
+
+    def __init__(self, source: RolloutSource, history_s: float = HISTORY_S) -> None:
+        from mimickit.envs.env_builder import build_env  # torch/mujoco-heavy: only when asked
+        from mimickit.learning.agent_builder import build_agent
+
+        self.source = source
+        with data_dir_for_build(source.data_dir), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            self.env = build_env(source.env_config, source.engine_config, 1, "cpu", visualize=True)
+            try:
+                self.agent = build_agent(source.agent_config, self.env, "cpu", verbose=False)
+                self.agent.load(source.checkpoint)  # MimicKitError (one line) when it does not fit
+            except BaseException:
+                self.close()
+                raise
+        self.agent.eval()
+        engine = self.env.engine
+        self.model: mujoco.MjModel = engine.mj_model
+        self.data: mujoco.MjData = engine.mj_datas[0]
+        self._scratch = mujoco.MjData(self.model)  # for drawing recorded frames
+        self.dt = float(engine.get_timestep())
+        names = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(self.model.nbody)]
+        self.ghost_bodies = np.array([b for b, n in enumerate(names) if GHOST_NAME in n], dtype=np.int64)
+        char = [b for b, n in enumerate(names) if b > 0 and GHOST_NAME not in n]
+        self.root_body = char[0] if char else 0
+        self.ghost_root = int(self.ghost_bodies[0]) if len(self.ghost_bodies) else None
+        self.reward_weights: dict[str, float] = dict(getattr(self.env, "reward_weights", {}) or {})
+        self.history: deque[Frame] = deque(maxlen=max(2, round(history_s / self.dt)))
+        st = source.checkpoint.stat()
+        self.checkpoint_mtime_ns, self.checkpoint_mtime = st.st_mtime_ns, st.st_mtime
+        self.reloads = 0
+        self.error: str | None = None
+        self.steps = 0
+        self.episode = -1
+        self.episodes: deque[EpisodeSummary] = deque(maxlen=100)
+        self.reset()
+
+    @property
+    def control_freq(self) -> float:
+        return 1.0 / self.dt
+
+    def reset(self) -> None:
+        """A new episode (the env's own reset: reference-state init from the clip)."""
+        with torch.no_grad():
+            self._obs, _ = self.env.reset()
+        self.episode += 1
+        self.episode_step = 0
+        self.episode_return = 0.0
+        self._record(None, None, 0)
+
+    def step(self) -> Frame:
+        """One control step of the deterministic policy; an episode that ends is reset at once."""
+        with torch.no_grad():
+            action = self.agent.compute_action(self._obs, deterministic=True)
+            obs, reward, done, info = self.env.step(action)
+        terms = {k: float(v.reshape(-1)[0]) for k, v in (info.get("reward_terms") or {}).items()}
+        r = float(reward.reshape(-1)[0])
+        d = int(done.reshape(-1)[0])
+        self.steps += 1
+        self.episode_step += 1
+        self.episode_return += r
+        frame = self._record(r, terms, d)
+        if d:
+            self.episodes.append(EpisodeSummary(self.episode, self.episode_step, self.episode_return, d))
+            self.reset()
+        else:
+            self._obs = obs
+        return frame
+
+    def reload_if_newer(self) -> bool:
+        """Load the checkpoint again when its file changed; True when new weights were loaded. A file
+        that no longer fits keeps the old weights and sets `error`."""
+        try:
+            st = self.source.checkpoint.stat()
+        except OSError:
+            return False
+        if st.st_mtime_ns == self.checkpoint_mtime_ns:
+            return False
+        # This version is tried once, fitting or not.
+        self.checkpoint_mtime_ns, self.checkpoint_mtime = st.st_mtime_ns, st.st_mtime
+        try:
+            self.agent.load(self.source.checkpoint)
+        except MimicKitError as e:
+            self.error = f"kept the previous weights: {e}"
+            return False
+        self.agent.eval()
+        self.error = None
+        self.reloads += 1
+        self.reset()
+        return True
+
+    def pose(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """World xpos [nbody, 3] and xmat [nbody, 9] of a recorded frame."""
+        d = self._scratch
+        d.qpos[:] = frame.qpos
+        mujoco.mj_kinematics(self.model, d)
+        return d.xpos.copy(), d.xmat.copy()
+
+    def close(self) -> None:
+        close = getattr(getattr(getattr(self, "env", None), "engine", None), "close", None)
+        if close:
+            close()
+
+    def _record(self, reward: float | None, terms: dict[str, float] | None, done: int) -> Frame:
+        # The env's getters have synced the MjData (character and ghost) for this step.
+        frame = Frame(
+            self.steps, self.episode, self.episode_step, self.data.qpos.copy(), reward, terms, self.episode_return, done
+        )
+        self.history.append(frame)
+        return frame
+
+
+@dataclass
+class RolloutState:
+    playing: bool = False
+    speed: float = 1.0
+    follow: bool = True
+    view: int | None = None  # index into the history being shown; None: the live end
+    updates: int = 0  # scene updates sent
+    root_pos: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+class RolloutPlayer:
+    """A `Rollout` stepped by a worker thread and drawn in `scene` (None: not drawn, for tests)."""
+
+    def __init__(self, rollout: Rollout, scene: StudioScene | None = None, *, play: bool = False) -> None:
+        self.rollout = rollout
+        self.scene = scene
+        self.state = RolloutState(playing=play)
+        self._lock = threading.RLock()
+        self._wake = threading.Event()
+        self._closed = threading.Event()
+        self._listeners: list[Callable[[RolloutPlayer], None]] = []
+        if scene is not None:
+            scene.show_rollout(rollout.model, rollout.ghost_bodies)
+        with self._lock:
+            self._draw()
+        self._thread = threading.Thread(target=self._run, name="rollout", daemon=True)
+        self._thread.start()
+
+    def add_listener(self, fn: Callable[[RolloutPlayer], None]) -> None:
+        """`fn(player)` after every drawn frame and every state change."""
+        self._listeners.append(fn)
+
+    # -- commands (any thread) ----------------------------------------------------------------------
+
+    def play(self) -> None:
+        with self._lock:
+            self.state.playing = True
+            if self.state.view is not None:
+                self.state.view = None  # back to the live end, which goes on from where it was
+                self._draw()
+        self._changed()
+        self._wake.set()
+
+    def pause(self) -> None:
+        with self._lock:
+            self.state.playing = False
+        self._changed()
+
+    def toggle(self) -> None:
+        self.pause() if self.state.playing else self.play()
+
+    def step(self, frames: int = 1) -> None:
+        """Pause; forward through the recorded history, simulating at its live end; back for frames < 0."""
+        with self._lock:
+            self.state.playing = False
+            hist = self.rollout.history
+            if frames < 0:
+                self.state.view = max(0, self._shown_index() + frames)
+            else:
+                for _ in range(min(frames, MAX_STEP_FRAMES)):
+                    i = self._shown_index()
+                    if i < len(hist) - 1:
+                        self.state.view = i + 1
+                    else:
+                        self.rollout.step()
+                        self.state.view = None
+                if self.state.view is not None and self.state.view >= len(hist) - 1:
+                    self.state.view = None
+            self._draw()
+
+    def seek(self, *, frame: int | None = None, time_s: float | None = None) -> None:
+        """Show a recorded frame (pauses): `frame` indexes the history, `time_s` is rollout time."""
+        with self._lock:
+            hist = self.rollout.history
+            if frame is None:  # the last frame at or before that step (an episode's end and the next
+                step = round((time_s or 0.0) / self.rollout.dt)  # episode's start share a step number)
+                frame = max([0, *(i for i, f in enumerate(hist) if f.step <= step)])
+            self.state.playing = False
+            i = max(0, min(int(frame), len(hist) - 1))
+            self.state.view = None if i == len(hist) - 1 else i
+            self._draw()
+
+    def configure(self, *, speed: float | None = None, loop: bool | None = None, follow: bool | None = None) -> None:
+        with self._lock:
+            if speed is not None:
+                self.state.speed = min(max(float(speed), MIN_SPEED), MAX_SPEED)
+            if follow is not None:
+                self.state.follow = bool(follow)
+                self._draw()
+        self._changed()
+
+    def reset(self) -> None:
+        """Start a new episode now."""
+        with self._lock:
+            self.rollout.reset()
+            self.state.view = None
+            self._draw()
+
+    def close(self) -> None:
+        self._closed.set()
+        self._wake.set()
+        self._thread.join(timeout=5)
+        self.rollout.close()
+
+    # -- reading ------------------------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, Any]:
+        """The rollout's state, with the clip player's keys (frame/num_frames is the history)."""
+        with self._lock:
+            r, s = self.rollout, self.state
+            i = self._shown_index()
+            shown = r.history[i]
+            latest = r.history[-1]
+            last_terms = next((f for f in reversed(r.history) if f.terms is not None), None)
+            src = r.source
+            return {
+                "mode": "rollout",
+                "clip": None,
+                "char": None,
+                "num_frames": len(r.history),
+                "fps": r.control_freq,
+                "duration": len(r.history) * r.dt,
+                "frame": i,
+                "time": shown.step * r.dt,
+                "playing": s.playing,
+                "speed": s.speed,
+                "loop": True,
+                "follow": s.follow,
+                "updates": s.updates,
+                "root_pos": list(s.root_pos),
+                "contacts": {},
+                "rollout": {
+                    **src.to_json(),
+                    "checkpoint_mtime": r.checkpoint_mtime,
+                    "reloads": r.reloads,
+                    "error": r.error,
+                    "control_freq": r.control_freq,
+                    "step": r.steps,
+                    "live": s.view is None,
+                    "episode": latest.episode,
+                    "episode_step": latest.episode_step,
+                    "episode_return": latest.episode_return,
+                    "episodes": [e.to_json() for e in list(r.episodes)[-10:]],
+                    "reward": last_terms.reward if last_terms else None,
+                    "reward_terms": last_terms.terms if last_terms else {},
+                    "reward_weights": r.reward_weights,
+                    "history_seconds": len(r.history) * r.dt,
+                    "shown": {
+                        "step": shown.step,
+                        "episode": shown.episode,
+                        "episode_step": shown.episode_step,
+                        "reward": shown.reward,
+                        "reward_terms": shown.terms or {},
+                        "episode_return": shown.episode_return,
+                    },
+                },
+            }
+
+    def history_rows(self, since_step: int = -1, limit: int = 5000) -> list[dict[str, Any]]:
+        """Recorded steps after `since_step` with their reward and terms (episode starts left out)."""
+        with self._lock:
+            frames = [f for f in self.rollout.history if f.step > since_step and f.terms is not None]
+        dt = self.rollout.dt
+        return [
+            {"step": f.step, "time": f.step * dt, "episode": f.episode, "reward": f.reward, "terms": f.terms}
+            for f in frames[-limit:]
+        ]
+
+    # -- internals ----------------------------------------------------------------------------------
+
+    def _shown_index(self) -> int:
+        n = len(self.rollout.history)
+        return n - 1 if self.state.view is None else min(self.state.view, n - 1)
+
+    def _draw(self) -> None:
+        r = self.rollout
+        frame = r.history[self._shown_index()]
+        xpos, xmat = r.pose(frame)
+        root = xpos[r.root_body]
+        # Following keeps the pair in view: the point halfway between the character and its ghost.
+        centre = root if r.ghost_root is None else 0.5 * (root + xpos[r.ghost_root])
+        if self.scene is not None:
+            self.scene.draw_bodies(xpos, xmat, centre, self.state.follow)
+        self.state.root_pos = root.astype(float).tolist()
+        self.state.updates += 1
+        self._changed()
+
+    def _changed(self) -> None:
+        for fn in self._listeners:
+            try:
+                fn(self)
+            except Exception as e:  # noqa: BLE001 - a GUI hiccup must not stop the rollout
+                print(f"rollout listener: {e!r}")
+
+    def _run(self) -> None:
+        """Step at control rate × speed while playing (no bursts to catch up); poll the checkpoint."""
+        next_t = time.monotonic()
+        next_poll = next_t + RELOAD_POLL_S
+        while not self._closed.is_set():
+            now = time.monotonic()
+            if now >= next_poll:
+                next_poll = now + RELOAD_POLL_S
+                try:
+                    with self._lock:
+                        if self.rollout.reload_if_newer():
+                            self.state.view = None
+                            self._draw()
+                        elif self.rollout.error:
+                            self._changed()
+                except Exception as e:  # noqa: BLE001
+                    self.rollout.error = f"reload failed: {e!r}"
+            with self._lock:
+                playing = self.state.playing
+                period = self.rollout.dt / self.state.speed
+            if not playing:
+                self._wake.wait(min(0.1, max(0.0, next_poll - time.monotonic())))
+                self._wake.clear()
+                next_t = time.monotonic()
+                continue
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                self._wake.wait(delay)
+                self._wake.clear()
+                continue
+            try:
+                with self._lock:
+                    if self.state.playing:
+                        self.rollout.step()
+                        self.state.view = None
+                        self._draw()
+            except Exception as e:  # noqa: BLE001 - a simulation error pauses the rollout, reported in state
+                with self._lock:
+                    self.state.playing = False
+                    self.rollout.error = f"simulation stopped: {e!r}"
+                self._changed()
+            next_t = max(next_t + period, time.monotonic() - period)

@@ -1,0 +1,182 @@
+"""Live rollouts in-process (no server, no drawing): the policy stepping one env with its ghost, the
+recorded history, episode resets, the worker thread's real-time pace and commands, reloading a newer
+checkpoint; and checkpoint inspection."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from mimickit.util.errors import MimicKitError
+from studio.checkpoints import agent_type, check_fit_char, check_fit_env, fit_message, inspect_checkpoint
+from studio.rollout import Rollout, RolloutPlayer, source_for_checkpoint
+from tests.conftest import PROJECT_HUMANOID
+from tests.studio.conftest import ENGINE_YAML, ENV_YAML, smaller_obs_env_yaml, wait_for, write_checkpoint_dir
+
+TERMS = {"pose", "vel", "root_pose", "root_vel", "key_pos"}
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_checkpoint_dir(tmp_path_factory.mktemp("rollout") / "run")
+
+
+@pytest.fixture(scope="module")
+def other_obs_ckpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_checkpoint_dir(tmp_path_factory.mktemp("rollout") / "other", smaller_obs_env_yaml())
+
+
+@pytest.fixture
+def rollout(ckpt: Path):
+    r = Rollout(source_for_checkpoint(ckpt), history_s=2.0)
+    yield r
+    r.close()
+
+
+def test_source_reads_the_run_folder(ckpt: Path, tmp_path: Path) -> None:
+    src = source_for_checkpoint(ckpt)
+    assert src.env_config == ckpt.parent / "env_config.yaml" and src.agent_config == ckpt.parent / "agent_config.yaml"
+    assert src.engine_config == ckpt.parent / "engine_config.yaml" and src.data_dir is None
+    (ckpt.parent / "int_models").mkdir(exist_ok=True)  # an intermediate model: the configs are one up
+    inner = ckpt.parent / "int_models" / "model_0000000001.pt"
+    shutil.copyfile(ckpt, inner)
+    assert source_for_checkpoint(inner).env_config == src.env_config
+    lone = tmp_path / "lone.pt"
+    shutil.copyfile(ckpt, lone)
+    with pytest.raises(MimicKitError, match="no env_config and agent_config beside it"):
+        source_for_checkpoint(lone)
+    given = source_for_checkpoint(lone, env_config=ENV_YAML, agent_config=src.agent_config)
+    assert given.env_config == ENV_YAML
+
+
+def test_rollout_steps_records_and_resets(rollout: Rollout) -> None:
+    r = rollout
+    assert r.control_freq == pytest.approx(30.0)
+    assert len(r.ghost_bodies) == 15 and r.root_body not in r.ghost_bodies  # the reference is in the model
+    assert set(r.reward_weights) == TERMS
+    first = r.history[-1]
+    assert first.reward is None and first.step == 0  # the pose the episode starts from
+    for _ in range(400):  # an untrained policy falls within a few seconds
+        frame = r.step()
+        if frame.done:
+            break
+    assert frame.done, "no episode ended in 400 steps"
+    assert set(frame.terms) == TERMS and all(0.0 <= v <= 1.0 for v in frame.terms.values())
+    assert r.episodes[-1].steps == frame.episode_step and r.episodes[-1].ret == pytest.approx(frame.episode_return)
+    assert r.episode == 1 and r.history[-1].episode == 1 and r.history[-1].reward is None  # reset at once
+    for _ in range(70):
+        r.step()
+    assert len(r.history) == 60 and r.history[0].step > 0  # 2 s at 30 Hz: older steps are forgotten
+    # The ghost stands where the env's reference is, offset by ref_char_offset (2 m along x).
+    xpos, _ = r.pose(r.history[-1])
+    ref = r.env.get_ref_state()["root_pos"][0].numpy()
+    np.testing.assert_allclose(xpos[r.ghost_bodies[0]], ref + np.array([2.0, 0.0, 0.0]), atol=1e-5)
+    # A recorded frame is drawn from its qpos: scrubbing back shows the pose of that step.
+    old = r.history[5]
+    np.testing.assert_allclose(r.pose(old)[0][r.root_body], old.qpos[:3], atol=1e-6)
+
+
+def test_player_paces_pauses_steps_and_scrubs(rollout: Rollout) -> None:
+    rp = RolloutPlayer(rollout, None, play=True)
+    try:
+        time.sleep(1.5)
+        rp.pause()
+        steps = rollout.steps
+        assert 25 <= steps <= 50, f"{steps} steps in 1.5 s at 30 Hz"  # real time, not as fast as possible
+        time.sleep(0.3)
+        assert rollout.steps == steps
+        s = rp.snapshot()
+        assert s["mode"] == "rollout" and s["rollout"]["live"] and s["frame"] == s["num_frames"] - 1
+        assert set(s["rollout"]["reward_terms"]) == TERMS
+
+        rp.step(1)  # at the live end: one more simulated step
+        assert rollout.steps == steps + 1
+        rp.seek(frame=10)  # back in history: shown, not simulated
+        s = rp.snapshot()
+        assert s["frame"] == 10 and not s["rollout"]["live"] and rollout.steps == steps + 1
+        shown = s["rollout"]["shown"]["step"]
+        rp.step(1)
+        assert rp.snapshot()["rollout"]["shown"]["step"] == shown + 1 and rollout.steps == steps + 1
+        rp.step(-3)
+        assert rp.snapshot()["frame"] == 8
+        rp.seek(time_s=rollout.history[-1].step * rollout.dt)
+        assert rp.snapshot()["rollout"]["live"]
+        rows = rp.history_rows(since_step=steps - 5)
+        assert [r["step"] for r in rows] == sorted(r["step"] for r in rows) and rows[-1]["step"] == steps + 1
+        assert all(set(r["terms"]) == TERMS for r in rows)
+
+        rp.seek(frame=3)
+        rp.play()  # play goes back to the live end and simulates on
+        wait_for(lambda: rollout.steps > steps + 5, 5, "the rollout to go on")
+        assert rp.snapshot()["rollout"]["live"]
+    finally:
+        rp.close()
+
+
+def test_newer_checkpoint_is_reloaded(tmp_path: Path, ckpt: Path, other_obs_ckpt: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(ckpt.parent, run)
+    rp = RolloutPlayer(Rollout(source_for_checkpoint(run / "model.pt")), None, play=True)
+    try:
+        weight = rp.rollout.agent.state_dict()["_model._action_dist._mean_net.weight"].clone()
+        state = torch.load(run / "model.pt", weights_only=True)
+        state["_model._action_dist._mean_net.weight"] += 0.5
+        torch.save(state, run / ".model.pt.tmp")
+        os.replace(run / ".model.pt.tmp", run / "model.pt")  # as the trainer writes it: atomically
+        wait_for(lambda: rp.rollout.reloads == 1, 5, "the newer checkpoint to be loaded")
+        new = rp.rollout.agent.state_dict()["_model._action_dist._mean_net.weight"]
+        assert torch.allclose(new, weight + 0.5)
+        s = rp.snapshot()["rollout"]
+        assert s["checkpoint_mtime"] == pytest.approx((run / "model.pt").stat().st_mtime) and s["error"] is None
+
+        shutil.copyfile(other_obs_ckpt, run / "model.pt")  # a file that no longer fits: keep the old weights
+        wait_for(lambda: rp.rollout.error, 5, "the misfit to be reported")
+        assert "observation size differs" in rp.rollout.error and rp.rollout.reloads == 1
+        assert torch.allclose(rp.rollout.agent.state_dict()["_model._action_dist._mean_net.weight"], weight + 0.5)
+    finally:
+        rp.close()
+
+
+def test_misfit_checkpoint_is_refused_in_one_line(ckpt: Path, other_obs_ckpt: Path) -> None:
+    src = source_for_checkpoint(other_obs_ckpt, env_config=ckpt.parent / "env_config.yaml")
+    with pytest.raises(MimicKitError) as e:
+        Rollout(src)
+    msg = str(e.value)
+    assert "\n" not in msg and "does not fit" in msg and "observation size differs" in msg
+
+
+def test_inspect_checkpoint(ckpt: Path, other_obs_ckpt: Path) -> None:
+    info = inspect_checkpoint(ckpt)
+    assert (info["agent"], info["obs_size"], info["action_size"]) == ("PPO", 464, 28)
+    assert [layer["in"] for layer in info["networks"]["actor"]] == [464, 1024]
+    assert info["networks"]["action_head"][-1]["out"] == 28 and info["networks"]["critic"][-1]["out"] == 1
+    obs = info["normalizers"]["obs"]
+    assert obs["size"] == 464 and obs["count"] == 0 and obs["mean_std"] == pytest.approx(1.0)
+    assert info["train_state"]["iteration"] == 0 and info["train_state"]["samples_per_iteration"] is None
+    assert set(info["configs_beside"]) == {"env_config.yaml", "agent_config.yaml", "engine_config.yaml"}
+
+    fit = check_fit_env(ckpt, ENV_YAML, ENGINE_YAML, None, "demo env")
+    assert fit["fits"] and (fit["obs_size"], fit["action_size"]) == (464, 28)
+    misfit = check_fit_env(other_obs_ckpt, ENV_YAML, ENGINE_YAML, None, "demo env")
+    assert not misfit["fits"]
+    assert misfit["message"].startswith("the checkpoint does not fit demo env: it was trained on observations of")
+    assert check_fit_char(ckpt, PROJECT_HUMANOID, "humanoid")["fits"]
+
+
+def test_agent_type_from_keys() -> None:
+    t = torch.zeros(1)
+    base = {"_model._actor_layers.0.weight": t, "_model._critic_layers.0.weight": t}
+    assert agent_type(base)[0] == "PPO or AWR"
+    assert agent_type({**base, "_model._disc_layers.0.weight": t})[0] == "AMP or ADD"
+    assert agent_type({**base, "_model._enc_layers.0.weight": t, "_model._disc_layers.0.weight": t})[0] == "ASE"
+    assert agent_type({**base, "_train_state": {"agent_name": "AWR"}})[0] == "AWR"
+    assert fit_message((464, 28), (464, 12), "go2") == (
+        "the checkpoint does not fit go2: it was trained on actions of 28 values, go2 takes 12 (a different character?)"
+    )
+    assert fit_message((464, 28), (464, 28), "x") is None

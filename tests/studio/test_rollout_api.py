@@ -1,0 +1,118 @@
+"""Rollouts and checkpoint inspection through the real server: load a checkpoint's rollout, drive it
+with the scene commands, read its state and reward-term history; refuse checkpoints that do not fit
+(one line, HTTP 400); inspect checkpoints and check them against env configs and characters."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from tests.studio.conftest import ENV_YAML, StudioProcess, wait_for, write_arg_file
+
+TERMS = {"pose", "vel", "root_pose", "root_vel", "key_pos"}
+
+
+def state(studio: StudioProcess) -> dict:
+    return studio.get("/api/scene/state").json()
+
+
+def test_rollout_of_a_checkpoint(studio: StudioProcess, demo_checkpoint: Path) -> None:
+    r = studio.post("/api/scene/load_rollout", {"checkpoint": str(demo_checkpoint)})
+    assert r.status_code == 200, r.text
+    s = r.json()
+    assert s["mode"] == "rollout" and s["playing"] and s["fps"] == 30.0
+    info = s["rollout"]
+    assert info["checkpoint"] == str(demo_checkpoint) and info["env_config"].endswith("ckpt-demo/env_config.yaml")
+    assert info["checkpoint_mtime"] == demo_checkpoint.stat().st_mtime
+    try:
+        moved = wait_for(lambda: (st := state(studio))["rollout"]["step"] >= 20 and st, 15, "the rollout to step")
+        assert set(moved["rollout"]["reward_terms"]) == TERMS and moved["updates"] >= 20
+        assert set(moved["rollout"]["reward_weights"]) == TERMS
+        # An untrained policy falls: episodes end and start again by themselves.
+        wait_for(lambda: state(studio)["rollout"]["episodes"], 20, "an episode to end and reset")
+
+        paused = studio.post("/api/scene/pause").json()  # the clip player's commands drive the rollout
+        assert not paused["playing"]
+        step = paused["rollout"]["step"]
+        assert studio.post("/api/scene/step", {"frames": 2}).json()["rollout"]["step"] == step + 2
+        back = studio.post("/api/scene/seek", {"frame": 3}).json()
+        assert back["frame"] == 3 and not back["rollout"]["live"] and back["rollout"]["step"] == step + 2
+        assert studio.post("/api/scene/step", {"frames": -1}).json()["frame"] == 2
+
+        h = studio.get("/api/scene/rollout/history", params={"since": step - 3}).json()
+        assert [row["step"] for row in h["rows"]][-1] == step + 2 and set(h["rows"][-1]["terms"]) == TERMS
+        reset = studio.post("/api/scene/rollout/reset").json()
+        assert reset["rollout"]["live"] and reset["rollout"]["episode_step"] == 0
+        played = studio.post("/api/scene/play").json()
+        assert played["playing"] and played["rollout"]["live"]
+    finally:
+        closed = studio.post("/api/scene/rollout/close").json()
+    assert closed["mode"] == "clip"
+    assert studio.get("/api/scene/rollout/history").status_code == 409
+
+
+def test_clip_replaces_the_rollout(studio: StudioProcess, demo_checkpoint: Path) -> None:
+    assert (
+        studio.post("/api/scene/load_rollout", {"checkpoint": str(demo_checkpoint), "play": False}).status_code == 200
+    )
+    s = studio.post("/api/scene/load_clip", {"path": "data/motions/humanoid_demo_squat.pkl"}).json()
+    assert s["mode"] == "clip" and s["clip"].endswith("humanoid_demo_squat.pkl")
+    assert state(studio)["mode"] == "clip"
+
+
+def test_checkpoints_that_do_not_fit_are_refused(studio: StudioProcess, misfit_checkpoint: Path) -> None:
+    r = studio.post("/api/scene/load_rollout", {"checkpoint": str(misfit_checkpoint)})
+    assert r.status_code == 400
+    detail = r.json()["detail"]
+    assert "\n" not in detail and "does not fit" in detail and "observation size differs" in detail
+    # A run of the fake trainer: its model.pt is not a torch checkpoint.
+    write_arg_file(studio.runs_dir, "two", rows=2, period=0.05)
+    run = studio.post("/api/runs", {"arg_file": str(studio.runs_dir / "args" / "two.txt")}).json()
+    wait_for(lambda: studio.get(f"/api/runs/{run['id']}").json()["status"] == "succeeded", what="the fake run")
+    r = studio.post("/api/scene/load_rollout", {"run_id": run["id"]})
+    assert r.status_code == 400 and "no env_config and agent_config beside it" in r.json()["detail"]
+    configs = {
+        "env_config": str(ENV_YAML),
+        "agent_config": "data/agents/deepmimic_humanoid_ppo_agent.yaml",
+        "engine_config": "data/engines/mujoco_engine.yaml",
+    }
+    r = studio.post("/api/scene/load_rollout", {"run_id": run["id"], **configs})
+    assert r.status_code == 400 and "not a readable checkpoint" in r.json()["detail"]
+    assert studio.post("/api/scene/load_rollout", {"run_id": 9999}).status_code == 404
+    assert studio.post("/api/scene/load_rollout", {}).status_code == 422
+    outside = studio.post("/api/scene/load_rollout", {"checkpoint": "/etc/passwd"})
+    assert outside.status_code == 403
+    assert state(studio)["mode"] == "clip"  # nothing was replaced
+
+
+def test_inspect_checkpoints(studio: StudioProcess, demo_checkpoint: Path, misfit_checkpoint: Path) -> None:
+    listed = studio.get("/api/checkpoints").json()
+    assert str(demo_checkpoint) in [c["path"] for c in listed]
+
+    r = studio.get("/api/checkpoints/inspect", params={"path": str(demo_checkpoint)})
+    assert r.status_code == 200, r.text
+    c = r.json()
+    assert (c["agent"], c["obs_size"], c["action_size"], c["fit"]) == ("PPO", 464, 28, None)
+    assert c["networks"]["actor"][0]["shape"] == [1024, 464]
+    assert c["normalizers"]["obs"]["size"] == 464 and c["normalizers"]["action"]["size"] == 28
+    assert c["train_state"]["agent_name"] == "PPO"
+
+    fits = studio.get(
+        "/api/checkpoints/inspect",
+        params={"path": str(demo_checkpoint), "env_config": "data/envs/deepmimic_humanoid_env.yaml"},
+    ).json()["fit"]
+    assert fits["fits"] and (fits["obs_size"], fits["action_size"]) == (464, 28)
+    misfit = studio.get(
+        "/api/checkpoints/inspect", params={"path": str(misfit_checkpoint), "env_config": str(ENV_YAML)}
+    ).json()["fit"]
+    assert not misfit["fits"] and "observations of" in misfit["message"] and "gives 464" in misfit["message"]
+    char = studio.get(
+        "/api/checkpoints/inspect", params={"path": str(demo_checkpoint), "char": "data/assets/humanoid/humanoid.xml"}
+    ).json()["fit"]
+    assert char["fits"] and char["action_size"] == 28
+
+    assert studio.get("/api/checkpoints/inspect", params={"path": "/etc/passwd"}).status_code == 403
+    fake = studio.runs_dir / "fake.pt"
+    fake.write_text(json.dumps({"iteration": 1}))
+    r = studio.get("/api/checkpoints/inspect", params={"path": str(fake)})
+    assert r.status_code == 400 and "not a readable checkpoint" in r.json()["detail"]
