@@ -80,7 +80,10 @@ def run(rank: int, world: int, device: str, port: int, argv: list[str]) -> dict[
 
     if mode == "test":
         episodes = args.parse_int("test_episodes", np.iinfo(np.int64).max)
-        return agent.test_model(episodes).to_dict()
+        result: dict[str, Any] = agent.test_model(episodes).to_dict()
+        summary = getattr(env, "tracking_summary", dict)()
+        result["tracking"] = test_tracking(summary)
+        return result
 
     out_dir = Path(args.parse_string("out_dir", "output/"))
     if mp_util.is_root_proc():
@@ -95,6 +98,18 @@ def run(rank: int, world: int, device: str, port: int, argv: list[str]) -> dict[
         logger_type=args.parse_string("logger", "txt"),
     )
     return None
+
+
+def test_tracking(summary: dict[str, float]) -> dict[str, float]:
+    """The env's tracking errors over the test steps, averaged over processes, plus the two of the ADD
+    paper's Table 1: `pos_err_m` (mean over bodies of the root-relative body position error, metres) and
+    `dof_vel_err` (mean |Δ dof velocity|, rad/s). Empty for envs without a reference motion."""
+    from mimickit.learning import mp_util
+
+    tracking = {k: float(mp_util.reduce_mean(v)) for k, v in sorted(summary.items())}
+    if "body_pos_err" in tracking:
+        tracking["pos_err_m"] = tracking["body_pos_err"]
+    return tracking
 
 
 def _config_path(args: ArgParser, key: str, required: bool = False) -> str | None:
@@ -162,6 +177,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"Mean Return: {result['mean_return']:.4f}")
             print(f"Mean Episode Length: {result['mean_episode_length']:.2f}")
             print(f"Episodes: {result['episodes']}")
+            for k, v in result.get("tracking", {}).items():
+                print(f"Tracking {k}: {v:.4f}")
     return 0
 
 

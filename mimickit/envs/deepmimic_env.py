@@ -99,7 +99,11 @@ class DeepMimicEnv(CharEnv):
         self._tracking_count = 0
 
     def record_diagnostics(self) -> dict[str, float]:
-        if not self.config.log_tracking_error or not getattr(self, "_tracking_count", 0):
+        return self.tracking_summary() if self.config.log_tracking_error else {}
+
+    def tracking_summary(self) -> dict[str, float]:
+        """Mean tracking errors over every env-step recorded since the env entered TEST mode."""
+        if not getattr(self, "_tracking_count", 0):
             return {}
         return {k: v / self._tracking_count for k, v in self._tracking_sum.items()}
 
@@ -207,7 +211,7 @@ class DeepMimicEnv(CharEnv):
             self._last_sim = sim
         self._store_info("reward_terms", terms, env_ids)
         self._store_info("tracking", tracking, env_ids)
-        if self._mode == EnvMode.TEST and self.config.log_tracking_error:
+        if self._mode == EnvMode.TEST:  # always: `mimickit test` reports it whatever the yaml says
             self._record_tracking(tracking)
 
     def _store_info(self, key: str, values: dict[str, torch.Tensor], env_ids: torch.Tensor | None) -> None:

@@ -104,6 +104,8 @@ class BaseAgent(nn.Module, abc.ABC):
         self._test_return_tracker = ReturnTracker(env.get_num_envs(), self._device)
         self._info_sums: dict[str, torch.Tensor] = {}
         self._info_steps = 0
+        self._sim_time = 0.0
+        self._iter_timing: dict[str, float] = {}
         self._curr_obs: torch.Tensor | None = None
         self._curr_info: dict[str, Any] = {}
 
@@ -318,6 +320,8 @@ class BaseAgent(nn.Module, abc.ABC):
         steps = max(self._info_steps, 1)
         for name, total in self._info_sums.items():
             logger.log_metric(name, total.item() / steps)
+        for name, value in self._iter_timing.items():
+            logger.log_metric(name, value)
 
     def _compute_succ_val(self) -> float:
         return self._env.get_reward_succ() / (1.0 - self.config.discount)
@@ -345,13 +349,24 @@ class BaseAgent(nn.Module, abc.ABC):
         self.eval()
         self.set_mode(AgentMode.TRAIN)
         update_normalizer = self._need_normalizer_update()
+        start = time.perf_counter()
+        self._sim_time = 0.0
         with torch.no_grad():
             if not self._rollout_train(self.config.steps_per_iter):
                 return None
+        collected = time.perf_counter()
         data_info = self._build_train_data()
         train_info = self._update_model()
         if update_normalizer:
             self._update_normalizers()
+        end = time.perf_counter()
+        # Where an iteration's wall time goes (metrics.jsonl only; log.txt keeps the reference columns).
+        self._iter_timing = {
+            "time.sim_s": self._sim_time,
+            "time.inference_s": collected - start - self._sim_time,
+            "time.update_s": end - collected,
+            "time.samples_per_s": self._exp_buffer.get_total_samples() * mp_util.get_num_procs() / (end - start),
+        }
         info: dict[str, float] = {**train_info, **data_info}
         info["mean_return"] = self._train_return_tracker.get_mean_return()
         info["mean_ep_len"] = self._train_return_tracker.get_mean_ep_len()
@@ -365,10 +380,14 @@ class BaseAgent(nn.Module, abc.ABC):
                 return False
             action, action_info = self._decide_action(self._curr_obs, self._curr_info)
             self._record_data_pre_step(self._curr_obs, self._curr_info, action, action_info)
+            t0 = time.perf_counter()
             next_obs, reward, done, next_info = self._env.step(action)
+            t1 = time.perf_counter()
             self._train_return_tracker.update(reward, done)
             self._record_data_post_step(next_obs, reward, done, next_info)
+            t2 = time.perf_counter()
             self._curr_obs, self._curr_info = self._reset_done_envs(next_obs, next_info, done)
+            self._sim_time += (t1 - t0) + (time.perf_counter() - t2)
             self._exp_buffer.inc()
         return True
 
