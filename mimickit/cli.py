@@ -73,6 +73,14 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _checkpoint_export(args: argparse.Namespace) -> int:
+    from mimickit.tools.export_checkpoint import export_checkpoint
+
+    sizes = export_checkpoint(args.src, args.dst, reference=args.reference)
+    print(f"{args.dst}: {sizes['exported_bytes'] / 1e6:.1f} MB (from {sizes['source_bytes'] / 1e6:.1f} MB)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mimickit", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -97,6 +105,14 @@ def build_parser() -> argparse.ArgumentParser:
     conv.add_argument("input", help="DeepMimic humanoid3d clip (.txt, JSON)")
     conv.add_argument("out", help="output .pkl")
     conv.set_defaults(func=_motion_convert)
+
+    ckpt = sub.add_parser("checkpoint", help="work with agent checkpoints (.pt)")
+    csub = ckpt.add_subparsers(dest="checkpoint_command", required=True)
+    exp = csub.add_parser("export", help="drop the optimiser states (for shipping a trained model)")
+    exp.add_argument("src", help="a model.pt written by mimickit train")
+    exp.add_argument("dst", help="where to write the exported checkpoint")
+    exp.add_argument("--reference", action="store_true", help="drop _train_state too (MimicKit's strict loader)")
+    exp.set_defaults(func=_checkpoint_export)
 
     bench = sub.add_parser("bench", help="env steps/s with random actions vs raw MuJoCo rollout on the same model")
     bench.add_argument("--engine_config", default="data/engines/mujoco_engine.yaml")

@@ -24,8 +24,9 @@ from typing import Any
 
 import torch
 
+from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import set_data_dir
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, set_data_dir
 
 TRAIN_STATE_KEY = "_train_state"
 CONFIG_FILES = ("env_config.yaml", "engine_config.yaml", "agent_config.yaml")
@@ -181,12 +182,34 @@ def inspect_checkpoint(path: Path) -> dict[str, Any]:
 
 
 def configs_beside(path: Path) -> dict[str, str]:
-    """The run configs a trainer copied next to this checkpoint (model.pt, or int_models/x.pt)."""
+    """The run configs a trainer copied next to this checkpoint (model.pt, or int_models/x.pt), or
+    those a shipped model's arg file names (`models/x_model.pt` beside `models/x_model.txt`)."""
     for folder in (path.parent, path.parent.parent):
         found = {name: str(folder / name) for name in CONFIG_FILES if (folder / name).is_file()}
         if "env_config.yaml" in found:
             return found
-    return {}
+    sidecar = path.with_suffix(".txt")
+    return configs_from_arg_file(sidecar, data_dir=path.parent.parent) if sidecar.is_file() else {}
+
+
+def configs_from_arg_file(arg_file: Path, data_dir: Path) -> dict[str, str]:
+    """`--env_config` / `--agent_config` / `--engine_config` of an arg file; `data/...` paths resolve in
+    `data_dir` first, then in the project's data folder."""
+    args = ArgParser()
+    args.load_file(str(arg_file))
+    found = {}
+    for name in CONFIG_FILES:
+        value = args.parse_string(name.removesuffix(".yaml"), "")
+        if not value:
+            continue
+        rel = Path(value)
+        rest = Path(*rel.parts[1:]) if rel.parts[0] == "data" else None
+        candidates = [data_dir / rest, PROJECT_DATA_DIR / rest] if rest is not None else [PROJECT_ROOT / rel]
+        hit = next((c for c in candidates if c.is_file()), None)
+        if hit is None:
+            raise MimicKitError(f"{arg_file}: --{name.removesuffix('.yaml')} {value}: file not found")
+        found[name] = str(hit)
+    return found if "env_config.yaml" in found else {}
 
 
 # ------------------------------------------------------------------------------------------ fitting

@@ -58,6 +58,14 @@ def test_train_writes_outputs_then_test_and_resume_in_fresh_processes(tmp_path: 
     # An untrained policy falls: its bodies are centimetres to decimetres off the clip, not metres.
     assert 0.001 < tracking["pos_err_m"] < 1.0
 
+    for flag, keep_train_state in (("", True), ("--reference", False)):
+        dst = tmp_path / f"exported{flag}.pt"
+        r = mimickit("checkpoint", "export", str(out / "model.pt"), str(dst), *([flag] if flag else []))
+        assert r.returncode == 0, r.stderr
+        state = torch.load(dst, weights_only=True)
+        assert ("_train_state" in state) == keep_train_state and "optimizers" not in state.get("_train_state", {})
+        assert dst.stat().st_size < (out / "model.pt").stat().st_size
+
     r = mimickit(*train_args(out, "--max_samples", "640", "--model_file", str(out / "model.pt")))
     assert r.returncode == 0, r.stderr[-3000:]
     assert [m["samples"] for m in metrics(out)][-2:] == [512, 640], "resume continues the sample count"

@@ -5,6 +5,7 @@ No agent file (None or "") gives the `DummyAgent` (zero actions), as the referen
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import torch
@@ -23,7 +24,7 @@ def build_agent(
     config = load_agent_config(resolve_data_path(agent_file)) if agent_file else DummyAgentConfig()
     agent = build_agent_from_config(config, env, device)
     if verbose and mp_util.is_root_proc():
-        print(f"Total parameter count: {agent.get_num_params()}", flush=True)
+        print(f"Total parameter count: {agent.get_num_params()}", file=sys.stderr, flush=True)
     return agent
 
 

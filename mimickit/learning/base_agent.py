@@ -360,12 +360,13 @@ class BaseAgent(nn.Module, abc.ABC):
         if update_normalizer:
             self._update_normalizers()
         end = time.perf_counter()
+        samples = self.config.steps_per_iter * self.get_num_envs() * mp_util.get_num_procs()
         # Where an iteration's wall time goes (metrics.jsonl only; log.txt keeps the reference columns).
         self._iter_timing = {
             "time.sim_s": self._sim_time,
             "time.inference_s": collected - start - self._sim_time,
             "time.update_s": end - collected,
-            "time.samples_per_s": self._exp_buffer.get_total_samples() * mp_util.get_num_procs() / (end - start),
+            "time.samples_per_s": samples / (end - start),
         }
         info: dict[str, float] = {**train_info, **data_info}
         info["mean_return"] = self._train_return_tracker.get_mean_return()

@@ -116,3 +116,20 @@ def test_inspect_checkpoints(studio: StudioProcess, demo_checkpoint: Path, misfi
     fake.write_text(json.dumps({"iteration": 1}))
     r = studio.get("/api/checkpoints/inspect", params={"path": str(fake)})
     assert r.status_code == 400 and "not a readable checkpoint" in r.json()["detail"]
+
+
+def test_shipped_demo_model_rolls_out_with_its_arg_file(studio: StudioProcess) -> None:
+    """A fresh install shows a live policy: the shipped model is listed and rolls out on the configs
+    its `.txt` arg file names, and it stays up longer than an untrained policy (~1 s)."""
+    shipped = "data/models/deepmimic_humanoid_demo_model.pt"
+    listed = {c["path"]: c for c in studio.get("/api/checkpoints").json()}
+    assert listed[shipped]["has_configs"], listed[shipped]
+    r = studio.post("/api/scene/load_rollout", {"checkpoint": shipped})
+    assert r.status_code == 200, r.text
+    assert r.json()["rollout"]["env_config"].endswith("data/envs/deepmimic_humanoid_env.yaml")
+    try:
+        s = wait_for(lambda: (st := state(studio))["rollout"]["step"] >= 200 and st, 40, "200 policy steps")["rollout"]
+        longest = max([e["steps"] for e in s["episodes"]] + [s["episode_step"]])
+        assert longest >= 60, f"an untrained policy falls after ~30 steps; this one's episodes: {s['episodes']}"
+    finally:
+        studio.post("/api/scene/rollout/close")
