@@ -22,6 +22,8 @@ def build_env(
         from mimickit.envs.char_env import CharEnv as cls
     elif env_cfg.env_name == "deepmimic":
         from mimickit.envs.deepmimic_env import DeepMimicEnv as cls
+    elif env_cfg.env_name == "amp":
+        from mimickit.envs.amp_env import AMPEnv as cls
     elif env_cfg.env_name == "view_motion":
         from mimickit.envs.view_motion_env import ViewMotionEnv as cls
     elif env_cfg.env_name == "char_dof_test":

@@ -71,6 +71,13 @@ class DeepMimicEnvConfig(CharEnvConfig):
         return self
 
 
+class AMPEnvConfig(DeepMimicEnvConfig):
+    num_disc_obs_steps: int = Field(ge=1)
+    """Steps of state history in one discriminator observation (humanoid: 10)."""
+    disc_dof_vel_obs: bool = True
+    """Include the DoF velocities in the discriminator observation."""
+
+
 class ViewMotionEnvConfig(CharEnvConfig):
     motion_file: str
     global_obs: bool = False
@@ -83,6 +90,7 @@ class CharDofTestEnvConfig(CharEnvConfig):
 ENV_CONFIGS: dict[str, type[CharEnvConfig]] = {
     "char": CharEnvConfig,
     "deepmimic": DeepMimicEnvConfig,
+    "amp": AMPEnvConfig,
     "view_motion": ViewMotionEnvConfig,
     "char_dof_test": CharDofTestEnvConfig,
 }

@@ -1,4 +1,4 @@
-"""Typed configs of the agents (spec §6.1, §6.5, §6.6, §6.12) and loading an agent yaml.
+"""Typed configs of the agents (spec §6.1, §6.5, §6.6, §6.7, §6.12) and loading an agent yaml.
 
 The reference's agent yamls are the format. An unknown key, a wrong type or a missing required key is
 one `MimicKitError` naming the file and the key; numbers written like `1e-4` are numbers. Batch sizes
@@ -105,13 +105,44 @@ class AWRAgentConfig(ActorCriticAgentConfig):
     a_weight_clip: float = Field(default=20.0, gt=0)
 
 
+class AMPModelConfig(ActorCriticModelConfig):
+    disc_net: NetName
+    """Discriminator MLP; its output layer (Linear → 1 logit) starts with weights U(-1, 1)."""
+
+
+class AMPAgentConfig(PPOAgentConfig):
+    """PPO plus a discriminator that scores the env's disc obs against the clips' (spec §6.7)."""
+
+    agent_name: Literal["AMP"] = "AMP"  # type: ignore[assignment]
+    model: AMPModelConfig
+    disc_optimizer: OptimizerConfig
+    disc_epochs: int = Field(ge=0)
+    disc_batch_size: float = Field(gt=0)
+    """Samples per discriminator minibatch = ceil(disc_batch_size × num_envs), plus as many replayed."""
+    disc_buffer_size: int = Field(ge=1)
+    """Capacity of the replay buffer of past agent disc obs."""
+    disc_replay_samples: int = Field(ge=0)
+    """Agent disc obs pushed into the full replay buffer per iteration (all of them until it is full)."""
+    disc_logit_reg: float = Field(ge=0)
+    """Weight of Σ w² over the logit layer's weights."""
+    disc_grad_penalty: float = Field(ge=0)
+    """Weight of the gradient penalty ‖∂logit/∂(normalised disc obs)‖²."""
+    disc_reward_scale: float
+    """r_disc = −log(max(1 − sigmoid(logit), 1e-4)) × disc_reward_scale."""
+    task_reward_weight: float
+    disc_reward_weight: float
+    disc_eval_batch_size: int = Field(default=0, ge=0)
+    """Samples per discriminator forward pass when computing rewards; 0 = all at once."""
+
+
 AGENT_CONFIGS: dict[str, type[BaseAgentConfig]] = {
     "PPO": PPOAgentConfig,
     "AWR": AWRAgentConfig,
+    "AMP": AMPAgentConfig,
     "Dummy": DummyAgentConfig,
 }
 # Agents of the reference that are not ported yet; named in the error message.
-_NOT_YET = ("AMP", "ASE", "ADD", "LCP", "SMP")
+_NOT_YET = ("ASE", "ADD", "LCP", "SMP")
 
 
 def load_agent_config(path: str | Path) -> BaseAgentConfig:
