@@ -1,4 +1,4 @@
-"""The `mimickit` command: `motion info|convert|validate`, and the training entry points.
+"""The `mimickit` command: `motion info|convert|validate`, `plot`, `video`, and the training entry points.
 
 Every user mistake (bad clip, bad config, missing file) ends as one line on stderr and exit code 2.
 """
@@ -10,6 +10,7 @@ import json
 import sys
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 
 from mimickit.util.errors import MimicKitError
 
@@ -81,6 +82,34 @@ def _checkpoint_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plot(args: argparse.Namespace) -> int:
+    from mimickit.tools.plot_log import plot_logs
+
+    w, h = plot_logs(args.logs, args.out, x=args.x, columns=args.y)
+    print(f"wrote {args.out} ({w}x{h} px, {len(args.logs)} run(s))")
+    return 0
+
+
+def _video(args: argparse.Namespace) -> int:
+    from mimickit.tools.video import VideoOptions, motion_video, policy_video
+    from mimickit.util.paths import set_data_dir
+
+    if bool(args.motion) == bool(args.model_file) or bool(args.motion) != bool(args.char):
+        raise MimicKitError("give either --model_file M --arg_file A, or --motion PATH --char MJCF")
+    if args.model_file and not args.arg_file:
+        raise MimicKitError("--model_file needs --arg_file (the env, agent and engine configs of the model)")
+    set_data_dir(args.data_dir)
+    opts = VideoOptions(args.seconds, args.width, args.height, Path(args.frame_png) if args.frame_png else None)
+    if args.motion:
+        info = motion_video(args.motion, args.char, args.out, opts)
+    else:
+        info = policy_video(args.model_file, args.arg_file, args.out, opts, seed=args.rand_seed)
+    print(
+        f"wrote {info.path}: {info.frames} frames at {info.fps:g} fps, {info.width}x{info.height} ({info.gl_backend})"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mimickit", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -122,6 +151,29 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
     bench.add_argument("--json", action="store_true", help="print JSON (one object, or a list for several counts)")
     bench.set_defaults(func=_bench)
+
+    plot = sub.add_parser("plot", help="learning curves of runs (log.txt, metrics.jsonl or run folders) to a PNG")
+    plot.add_argument("logs", nargs="+", metavar="LOG", help="log.txt / metrics.jsonl files or run folders")
+    plot.add_argument("--out", required=True, help="PNG to write")
+    plot.add_argument("--x", default="samples", choices=["samples", "iteration", "wall_time"])
+    plot.add_argument("--y", nargs="+", metavar="COL", help="columns, one subplot each (default: returns, lengths)")
+    plot.set_defaults(func=_plot)
+
+    video = sub.add_parser("video", help="render a policy (with its reference as a ghost) or a clip to an MP4")
+    video.add_argument("--model_file", help="checkpoint (.pt) of a policy; needs --arg_file")
+    video.add_argument("--arg_file", help="arg file naming the env, agent and engine configs of the model")
+    video.add_argument(
+        "--motion", help="a clip (.pkl) to play kinematically (of a dataset .yaml: its first clip); needs --char"
+    )
+    video.add_argument("--char", help="MJCF character of the clip")
+    video.add_argument("--out", required=True, help="MP4 to write")
+    video.add_argument("--seconds", type=float, default=5.0)
+    video.add_argument("--width", type=int, default=320)
+    video.add_argument("--height", type=int, default=240)
+    video.add_argument("--frame_png", help="also save the last frame as a PNG")
+    video.add_argument("--rand_seed", type=int, default=0, help="seed of the policy episode (start time in the clip)")
+    video.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
+    video.set_defaults(func=_video)
     return parser
 
 

@@ -1,0 +1,323 @@
+"""MP4 videos of clips and policies: `mimickit video` (offscreen MuJoCo rendering, one frame per control step).
+
+Both sources run through the project's own envs, so a video shows exactly what the engine simulates:
+* a clip: `ViewMotionEnv` sets the clip's pose on the character every step (kinematic playback);
+* a policy: the env and agent of an arg file (as `mimickit test` builds them, one env), deterministic
+  actions; the env is built with `visualize=True`, so the DeepMimic env adds its reference character,
+  which is drawn translucent as a ghost. An episode that ends is reset at once, as in testing.
+
+The camera follows the character's root in the ground plane at a fixed height (spec §5.9 `track`),
+centred between character and ghost when there is one. Rendering needs an offscreen OpenGL: EGL, else
+OSMesa (`select_gl_backend`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import subprocess
+import sys
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+
+from mimickit.engines.engine import EngineConfig
+from mimickit.envs.char_env import CHAR_COLOR, CharEnv
+from mimickit.envs.env_builder import build_env
+from mimickit.envs.env_config import ViewMotionEnvConfig
+from mimickit.envs.view_motion_env import ViewMotionEnv
+from mimickit.learning.agent_builder import build_agent
+from mimickit.learning.base_agent import AgentMode, BaseAgent
+from mimickit.run import _config_path, seed_everything
+from mimickit.util.arg_parser import ArgParser
+from mimickit.util.config import load_config, parse_config
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import PROJECT_DATA_DIR
+
+GL_BACKENDS = ("egl", "osmesa")
+GHOST_TAG = "_reference/"  # DeepMimicEnv's visual reference object is named "reference"
+GHOST_ALPHA = 0.4
+CAMERA_DISTANCE = 3.0  # m: a standing humanoid fills about half the frame height
+CAMERA_DISTANCE_GHOST = 4.5  # m: character and ghost (2 m apart in the humanoid configs) fit a 4:3 frame
+CAMERA_ELEVATION = -18.0  # degrees
+CAMERA_AZIMUTH = 90.0  # degrees: looking along +y, the side view of MimicKit's camera (spec §5.9)
+LOOKAT_HEIGHT = 0.9  # m
+GRID_HALF_SIZE, GRID_STEP = 8, 1.0  # floor lines around the camera target, so that motion is visible
+GRID_RGBA = np.array([0.55, 0.58, 0.62, 1.0], dtype=np.float32)
+HEADLIGHT_AMBIENT, HEADLIGHT_DIFFUSE = 0.35, 0.6
+
+_PROBE = (
+    "import mujoco\n"
+    "m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=\"0.1\"/></worldbody></mujoco>')\n"
+    "mujoco.Renderer(m, 16, 16).render()\n"
+)
+
+
+@dataclass
+class VideoOptions:
+    seconds: float = 5.0
+    width: int = 320
+    height: int = 240
+    frame_png: Path | None = None
+    """Also save the last frame as a PNG."""
+
+    def num_frames(self, fps: float) -> int:
+        return max(1, round(self.seconds * fps))
+
+
+@dataclass
+class VideoInfo:
+    path: Path
+    frames: int
+    fps: float
+    width: int
+    height: int
+    gl_backend: str
+
+
+# ------------------------------------------------------------------------------------------- GL backend
+def select_gl_backend() -> str:
+    """Make MuJoCo render offscreen with $MUJOCO_GL when set, else EGL, else OSMesa; returns the name.
+
+    Each candidate is tried in a child process: a failing GL library can abort the process that loads
+    it, and the backend of this process can still be switched afterwards (`_use_backend`)."""
+    wanted = os.environ.get("MUJOCO_GL", "").strip().lower()
+    tried = []
+    for name in [wanted] if wanted else GL_BACKENDS:
+        error = _probe_backend(name)
+        if error is None:
+            _use_backend(name)
+            return name
+        tried.append(f"MUJOCO_GL={name}: {error}")
+    raise MimicKitError(
+        f"no offscreen OpenGL for rendering ({'; '.join(tried)}); install libEGL (apt: libegl1) or OSMesa"
+        " (apt: libosmesa6), or set MUJOCO_GL to a backend that works here"
+    )
+
+
+def _probe_backend(name: str) -> str | None:
+    """None when MuJoCo can render with backend `name`, else the last line of its error."""
+    env = dict(os.environ, MUJOCO_GL=name)
+    try:
+        proc = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        return "timed out"
+    if proc.returncode == 0:
+        return None
+    lines = [ln.strip() for ln in proc.stderr.splitlines() if ln.strip()]
+    return lines[-1] if lines else f"exit code {proc.returncode}"
+
+
+def _use_backend(name: str) -> None:
+    os.environ["MUJOCO_GL"] = name
+    # `import mujoco` picks its GL context class from MUJOCO_GL once (glfw when unset, which needs a
+    # display); the Renderer looks the class up at construction, so reloading that module switches it.
+    for module in ("mujoco.rendering.classic.gl_context", "mujoco.gl_context"):
+        mod = sys.modules.get(module)
+        cls = getattr(mod, "GLContext", None)
+        if mod is not None and getattr(cls, "__module__", "") != f"mujoco.{name}":
+            importlib.reload(mod)
+
+
+# ------------------------------------------------------------------------------------------ rendering
+class TrackingRenderer:
+    """Renders an MjData [H, W, 3] uint8 with a camera that follows `root_body` (and the ghost's root)."""
+
+    def __init__(self, model: mujoco.MjModel, width: int, height: int, root_body: int, ghost_root: int | None) -> None:
+        model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
+        model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
+        model.vis.headlight.ambient[:] = HEADLIGHT_AMBIENT  # the scene has no lights of its own
+        model.vis.headlight.diffuse[:] = HEADLIGHT_DIFFUSE
+        try:
+            self._renderer = mujoco.Renderer(model, height, width)
+        except Exception as e:  # noqa: BLE001 - any GL failure is one user-facing error
+            raise MimicKitError(f"cannot start offscreen rendering ({e.__class__.__name__}: {e})") from None
+        self._root, self._ghost = root_body, ghost_root
+        self._camera = mujoco.MjvCamera()
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+        self._camera.distance = CAMERA_DISTANCE if ghost_root is None else CAMERA_DISTANCE_GHOST
+        self._camera.elevation = CAMERA_ELEVATION
+        self._camera.azimuth = CAMERA_AZIMUTH
+
+    def render(self, data: mujoco.MjData) -> np.ndarray:
+        roots = [self._root] if self._ghost is None else [self._root, self._ghost]
+        centre = data.xpos[roots, :2].mean(axis=0)
+        self._camera.lookat[:] = (centre[0], centre[1], LOOKAT_HEIGHT)
+        self._renderer.update_scene(data, self._camera)
+        _add_floor_grid(self._renderer.scene, centre)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        self._renderer.close()
+
+
+def _add_floor_grid(scene: mujoco.MjvScene, centre: np.ndarray) -> None:
+    """Lines every GRID_STEP metres on the floor around `centre` (the floor itself is one flat colour)."""
+    cx, cy = np.round(centre / GRID_STEP) * GRID_STEP
+    span = GRID_HALF_SIZE * GRID_STEP
+    for k in range(-GRID_HALF_SIZE, GRID_HALF_SIZE + 1):
+        o = k * GRID_STEP
+        for a, b in (((cx + o, cy - span), (cx + o, cy + span)), ((cx - span, cy + o), (cx + span, cy + o))):
+            if scene.ngeom >= scene.maxgeom:
+                return
+            g = scene.geoms[scene.ngeom]
+            mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_LINE, np.zeros(3), np.zeros(3), np.eye(3).ravel(), GRID_RGBA)
+            mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_LINE, 1.0, np.array([*a, 0.002]), np.array([*b, 0.002]))
+            scene.ngeom += 1
+
+
+def body_ids(model: mujoco.MjModel, tag: str) -> list[int]:
+    """Bodies whose name contains `tag` (the engine prefixes each object's bodies with `<i>_<name>/`)."""
+    names = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(model.nbody))
+    return [b for b, n in enumerate(names) if tag in n]
+
+
+def make_ghost(model: mujoco.MjModel, bodies: list[int], alpha: float = GHOST_ALPHA) -> None:
+    """Draw the geoms of `bodies` translucent (rendering only: the ghost has no collisions anyway)."""
+    geoms = np.flatnonzero(np.isin(model.geom_bodyid, bodies))
+    model.geom_rgba[geoms, 3] = np.minimum(model.geom_rgba[geoms, 3], alpha)
+
+
+# ------------------------------------------------------------------------------------------------ MP4
+def write_mp4(path: str | Path, frames: Iterable[np.ndarray], fps: float, width: int, height: int) -> int:
+    """Encode frames [H, W, 3] uint8 as H.264 MP4 (yuv420p, which every player reads); returns the count.
+    Written to a temporary file first, so an interrupted render leaves no half video under `path`."""
+    import imageio_ffmpeg
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")
+    writer = imageio_ffmpeg.write_frames(
+        str(tmp), (width, height), fps=fps, codec="libx264", pix_fmt_out="yuv420p", quality=7,
+        macro_block_size=2, ffmpeg_log_level="error",
+    )  # fmt: skip
+    count = 0
+    try:
+        writer.send(None)
+        for frame in frames:
+            writer.send(np.ascontiguousarray(frame))
+            count += 1
+        writer.close()
+        os.replace(tmp, path)
+    finally:
+        writer.close()
+        tmp.unlink(missing_ok=True)
+    return count
+
+
+def _check_output(out: Path, opts: VideoOptions) -> None:
+    if out.suffix.lower() != ".mp4":
+        raise MimicKitError(f"--out must be an .mp4 file, got {out}")
+    if opts.seconds <= 0:
+        raise MimicKitError(f"--seconds must be positive, got {opts.seconds:g}")
+    if opts.width < 16 or opts.height < 16 or opts.width % 2 or opts.height % 2:
+        raise MimicKitError(f"--width and --height must be even and at least 16, got {opts.width}x{opts.height}")
+
+
+def _record(out: Path, frames: Iterator[np.ndarray], fps: float, opts: VideoOptions, backend: str) -> VideoInfo:
+    last: list[np.ndarray] = []
+
+    def keep_last() -> Iterator[np.ndarray]:
+        for f in frames:
+            last[:] = [f]
+            yield f
+
+    count = write_mp4(out, keep_last(), fps, opts.width, opts.height)
+    if opts.frame_png is not None and last:
+        import imageio.v3 as iio
+
+        Path(opts.frame_png).parent.mkdir(parents=True, exist_ok=True)
+        iio.imwrite(opts.frame_png, last[0])
+    return VideoInfo(out, count, fps, opts.width, opts.height, backend)
+
+
+# -------------------------------------------------------------------------------------------- sources
+def motion_video(motion_file: str | Path, char_file: str | Path, out: str | Path, opts: VideoOptions) -> VideoInfo:
+    """A clip played kinematically on the MJCF character `char_file` (of a dataset yaml, its first clip)."""
+    out = Path(out)
+    _check_output(out, opts)
+    backend = select_gl_backend()
+    # The env's episode length is unused here: ViewMotionEnv ends episodes by clip length, and we never reset.
+    fields = {"env_name": "view_motion", "char_file": str(char_file), "motion_file": str(motion_file)}
+    env_cfg = parse_config(ViewMotionEnvConfig, {**fields, "episode_length": opts.seconds}, "mimickit video")
+    engine_cfg = load_config(EngineConfig, PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml")
+    env = ViewMotionEnv(env_cfg, engine_cfg, 1, "cpu")
+    try:
+        model = env.engine.mj_model
+        char = body_ids(model, "_character/")
+        model.geom_rgba[np.isin(model.geom_bodyid, char), :3] = CHAR_COLOR  # the policy video's colour
+        fps = 1.0 / env.engine.get_timestep()
+        frames = _motion_frames(
+            env, TrackingRenderer(model, opts.width, opts.height, char[0], None), opts.num_frames(fps)
+        )
+        return _record(out, frames, fps, opts, backend)
+    finally:
+        env.engine.close()
+
+
+def _motion_frames(env: CharEnv, renderer: TrackingRenderer, n: int) -> Iterator[np.ndarray]:
+    action = torch.zeros(1, *env.get_action_space().shape)
+    try:
+        env.reset()
+        yield renderer.render(_synced(env))
+        for _ in range(n - 1):
+            env.step(action)  # the clip wraps or holds its last frame past the end; never reset
+            yield renderer.render(_synced(env))
+    finally:
+        renderer.close()
+
+
+def policy_video(
+    model_file: str | Path, arg_file: str | Path, out: str | Path, opts: VideoOptions, seed: int = 0
+) -> VideoInfo:
+    """The deterministic policy of `model_file` in the env and agent of `arg_file` (one env)."""
+    out = Path(out)
+    _check_output(out, opts)
+    args = ArgParser()
+    args.load_args(["--arg_file", str(arg_file), "--rand_seed", str(seed)])
+    env_file = _config_path(args, "env_config", required=True)
+    engine_file, agent_file = _config_path(args, "engine_config"), _config_path(args, "agent_config")
+    backend = select_gl_backend()
+    seed_everything(args, 0)  # same seed, same start time in the clip, same video
+    env = build_env(env_file, engine_file, 1, "cpu", visualize=True)  # visualize: the env adds the ghost
+    try:
+        model = getattr(env.engine, "mj_model", None)
+        if model is None:
+            raise MimicKitError(f"{engine_file or env_file}: video rendering needs the MuJoCo engine")
+        agent = build_agent(agent_file, env, "cpu", verbose=False)
+        agent.load(model_file)
+        agent.eval()
+        agent.set_mode(AgentMode.TEST)  # the env in test mode too, as `mimickit test`
+        char = body_ids(model, "_character/")
+        ghost = body_ids(model, GHOST_TAG)
+        make_ghost(model, ghost)
+        renderer = TrackingRenderer(model, opts.width, opts.height, char[0], ghost[0] if ghost else None)
+        fps = 1.0 / env.engine.get_timestep()
+        return _record(out, _policy_frames(env, agent, renderer, opts.num_frames(fps)), fps, opts, backend)
+    finally:
+        env.engine.close()
+
+
+def _policy_frames(env: CharEnv, agent: BaseAgent, renderer: TrackingRenderer, n: int) -> Iterator[np.ndarray]:
+    try:
+        obs, _ = env.reset()
+        yield renderer.render(_synced(env))
+        for _ in range(n - 1):
+            obs, _, done, _ = env.step(agent.compute_action(obs, deterministic=True))  # no_grad inside
+            yield renderer.render(_synced(env))
+            ended = torch.nonzero(done).flatten()
+            if len(ended):  # a fall or timeout starts a new episode, as in `mimickit test`
+                obs, _ = env.reset(ended)
+    finally:
+        renderer.close()
+
+
+def _synced(env: CharEnv) -> mujoco.MjData:
+    """Env 0's MjData with every pose the env has set: the engine pushes pending setter edits (the ghost's
+    pose, a reset) into its MjData on the next getter call."""
+    env.engine.get_root_pos(env.get_char_id())
+    return env.engine.mj_datas[0]

@@ -1,0 +1,81 @@
+"""`mimickit video`: real offscreen MuJoCo rendering of the demo clip and the demo policy, decoded back."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio_ffmpeg
+import numpy as np
+import pytest
+
+from mimickit.tools.video import VideoOptions, motion_video, select_gl_backend
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
+from tests.conftest import DEMO_CLIP, PROJECT_HUMANOID
+
+W, H = 160, 120  # small: these tests share the machine with training runs
+DEMO_MODEL = PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_demo_model.pt"
+DEMO_ARGS = PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"
+
+
+def decode(path: Path) -> tuple[dict, list[np.ndarray]]:
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    w, h = meta["size"]
+    return meta, [np.frombuffer(f, dtype=np.uint8).reshape(h, w, 3) for f in reader]
+
+
+def character_pixels(frame: np.ndarray) -> int:
+    """Pixels of the blue character (CHAR_COLOR under the headlight): blue well above red and green."""
+    r, g, b = (frame[..., i].astype(int) for i in range(3))
+    return int(((b > r + 40) & (b > g + 25)).sum())
+
+
+@pytest.mark.slow
+def test_clip_video_has_one_frame_per_control_step(tmp_path: Path) -> None:
+    out, png = tmp_path / "clip.mp4", tmp_path / "last.png"
+    info = motion_video(DEMO_CLIP, PROJECT_HUMANOID, out, VideoOptions(1.0, W, H, frame_png=png))
+    meta, frames = decode(out)
+    assert info.frames == len(frames) == 30 and meta["fps"] == 30
+    assert meta["size"] == (W, H)
+    first, last = frames[0], frames[-1]
+    assert character_pixels(first) > 100 and character_pixels(last) > 100
+    assert first.std() > 15  # character, floor grid and sky: not a blank frame
+    assert np.abs(first.astype(int) - last.astype(int)).mean() > 0.5  # the clip moves the character
+    assert png.is_file()
+
+
+@pytest.mark.slow
+def test_policy_video_from_the_cli(tmp_path: Path) -> None:
+    out = tmp_path / "policy.mp4"
+    cmd = [sys.executable, "-m", "mimickit.cli", "video", "--model_file", str(DEMO_MODEL), "--arg_file",
+           str(DEMO_ARGS), "--out", str(out), "--seconds", "1", "--width", str(W), "--height", str(H)]  # fmt: skip
+    proc = subprocess.run(cmd, cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "30 frames at 30 fps" in proc.stdout
+    _, frames = decode(out)
+    assert len(frames) == 30
+    assert character_pixels(frames[-1]) > 100
+    ghost = frames[-1][..., 1].astype(int) > frames[-1][..., 2].astype(int) + 15  # the green reference
+    assert ghost.sum() > 50
+
+
+def test_unusable_gl_backend_is_one_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("MUJOCO_GL", "glx")
+    monkeypatch.setenv("DISPLAY", ":4242")  # no X server there: GLX cannot start
+    with pytest.raises(MimicKitError, match=r"no offscreen OpenGL .*MUJOCO_GL=glx: .*libEGL"):
+        select_gl_backend()
+    assert os.environ["MUJOCO_GL"] == "glx"
+
+
+def test_video_argument_errors(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from mimickit import cli
+
+    assert cli.main(["video", "--motion", str(DEMO_CLIP), "--out", str(tmp_path / "v.mp4")]) == 2
+    assert "--char" in capsys.readouterr().err
+    args = ["video", "--motion", str(DEMO_CLIP), "--char", str(PROJECT_HUMANOID), "--out", str(tmp_path / "v.gif")]
+    assert cli.main(args) == 2
+    assert "error: --out must be an .mp4 file" in capsys.readouterr().err
