@@ -28,7 +28,7 @@ from mimickit.util import torch_util as tu
 DiscRewardFn = Callable[[torch.Tensor], torch.Tensor]
 """disc obs [n, disc_obs_dim] → unweighted discriminator reward [n]."""
 
-_HIST_KEYS = ("root_pos", "root_rot", "root_vel", "root_ang_vel", "joint_rot", "dof_vel", "key_pos")
+_HIST_KEYS = ("root_pos", "root_rot", "root_vel", "root_ang_vel", "joint_rot", "dof_vel", "body_pos")
 
 
 class AMPEnv(DeepMimicEnv):
@@ -38,6 +38,8 @@ class AMPEnv(DeepMimicEnv):
     def _build_sim_tensors(self, config: AMPEnvConfig) -> None:
         super()._build_sim_tensors(config)
         self._num_disc_obs_steps = config.num_disc_obs_steps
+        # Bodies whose positions the disc obs holds (AMP: the key bodies; ADD: all of them).
+        self._disc_body_ids = self._key_body_ids
         self._disc_reward_fn: DiscRewardFn | None = None
         self._reward_weights = {"task": 1.0}
 
@@ -81,7 +83,7 @@ class AMPEnv(DeepMimicEnv):
         body_pos, _ = self._char_model.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
         hist = {
             "root_pos": f.root_pos, "root_rot": f.root_rot, "root_vel": f.root_vel, "root_ang_vel": f.root_ang_vel,
-            "joint_rot": f.joint_rot, "dof_vel": f.dof_vel, "key_pos": body_pos[:, self._key_body_ids],
+            "joint_rot": f.joint_rot, "dof_vel": f.dof_vel, "body_pos": body_pos[:, self._disc_body_ids],
         }  # fmt: skip
         return {k: v.reshape(n, s, *v.shape[1:]) for k, v in hist.items()}
 
@@ -89,7 +91,7 @@ class AMPEnv(DeepMimicEnv):
         """Shift every history one step back and append the character's live state as the newest."""
         state = self._char_state()
         state["joint_rot"] = self._char_model.dof_to_rot(state["dof_pos"])
-        state["key_pos"] = state["body_pos"][:, self._key_body_ids]
+        state["body_pos"] = state["body_pos"][:, self._disc_body_ids]
         for k in _HIST_KEYS:
             buf = self._disc_hist[k]
             buf[:, :-1] = buf[:, 1:].clone()
@@ -126,17 +128,26 @@ class AMPEnv(DeepMimicEnv):
 
     def _update_info(self, env_ids: torch.Tensor | None = None) -> None:
         """Disc obs of the given envs (all when None), then the per-step reward terms."""
+        disc_obs = self._update_disc_obs(env_ids)
+        if env_ids is None and self.config.pose_termination:
+            self._last_sim = self._sim_state()
+        self._store_reward_terms(disc_obs, env_ids)
+
+    def _update_disc_obs(self, env_ids: torch.Tensor | None) -> torch.Tensor:
+        """Disc obs [n, disc_obs_dim] of the given envs' histories, also written into the info buffer."""
         hist = self._disc_hist if env_ids is None else {k: v[env_ids] for k, v in self._disc_hist.items()}
         disc_obs = self._disc_obs_from_hist(hist)
         if env_ids is None:
             self._disc_obs_buf[:] = disc_obs
-            if self.config.pose_termination:
-                self._last_sim = self._sim_state()
         else:
             self._disc_obs_buf[env_ids] = disc_obs
+        return disc_obs
+
+    def _store_reward_terms(self, disc_input: torch.Tensor, env_ids: torch.Tensor | None) -> None:
+        """`task`, and `disc` = the attached discriminator's reward of disc_input [n, disc_obs_dim]."""
         terms = {"task": self._compute_task_reward(env_ids)}
         if self._disc_reward_fn is not None:
-            terms["disc"] = self._disc_reward_fn(disc_obs)
+            terms["disc"] = self._disc_reward_fn(disc_input)
         self._store_info("reward_terms", terms, env_ids)
 
     def _compute_task_reward(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
@@ -164,14 +175,15 @@ def compute_disc_obs(
     """Discriminator observation of a state history (spec §5.4).
 
     hist holds S steps, oldest first: root_pos / root_vel / root_ang_vel [N,S,3], root_rot [N,S,4],
-    joint_rot [N,S,J-1,4], dof_vel [N,S,D], key_pos [N,S,K,3]; the positions are taken relative to
-    ref_root_pos [N,3] (heading of ref_root_rot [N,4] when local). Per step: root position (z absolute
-    with root_height_obs), root rotation, joint rotations, key positions relative to that step's root,
-    root velocity, root angular velocity, [dof velocities] → [N, S·(3|2 + 6 + 6(J-1) + 3K + 6 [+ D])].
+    joint_rot [N,S,J-1,4], dof_vel [N,S,D], body_pos [N,S,K,3] (AMP: the K key bodies); the positions
+    are taken relative to ref_root_pos [N,3] (heading of ref_root_rot [N,4] when local). Per step: root
+    position (z absolute with root_height_obs), root rotation, joint rotations, body positions relative
+    to that step's root, root velocity, root angular velocity, [dof velocities]
+    → [N, S·(3|2 + 6 + 6(J-1) + 3K + 6 [+ D])].
     """
     n, s = hist["root_pos"].shape[:2]
     pos_obs = compute_tar_obs(
-        ref_root_pos, ref_root_rot, hist["root_pos"], hist["root_rot"], hist["joint_rot"], hist["key_pos"],
+        ref_root_pos, ref_root_rot, hist["root_pos"], hist["root_rot"], hist["joint_rot"], hist["body_pos"],
         global_obs, root_height_obs,
     ).view(n, s, -1)  # fmt: skip
     vel, ang_vel = hist["root_vel"], hist["root_ang_vel"]

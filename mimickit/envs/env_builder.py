@@ -24,6 +24,8 @@ def build_env(
         from mimickit.envs.deepmimic_env import DeepMimicEnv as cls
     elif env_cfg.env_name == "amp":
         from mimickit.envs.amp_env import AMPEnv as cls
+    elif env_cfg.env_name == "add":
+        from mimickit.envs.add_env import ADDEnv as cls
     elif env_cfg.env_name == "view_motion":
         from mimickit.envs.view_motion_env import ViewMotionEnv as cls
     elif env_cfg.env_name == "char_dof_test":

@@ -78,6 +78,11 @@ class AMPEnvConfig(DeepMimicEnvConfig):
     """Include the DoF velocities in the discriminator observation."""
 
 
+class ADDEnvConfig(AMPEnvConfig):
+    """AMP's fields; ADD's disc obs hold every body and the reference is tracked as in DeepMimic
+    (humanoid: num_disc_obs_steps 1, log_tracking_error True)."""
+
+
 class ViewMotionEnvConfig(CharEnvConfig):
     motion_file: str
     global_obs: bool = False
@@ -91,6 +96,7 @@ ENV_CONFIGS: dict[str, type[CharEnvConfig]] = {
     "char": CharEnvConfig,
     "deepmimic": DeepMimicEnvConfig,
     "amp": AMPEnvConfig,
+    "add": ADDEnvConfig,
     "view_motion": ViewMotionEnvConfig,
     "char_dof_test": CharDofTestEnvConfig,
 }
