@@ -1,4 +1,4 @@
-"""Typed configs of the agents (spec §6.1, §6.5, §6.6, §6.7, §6.12) and loading an agent yaml.
+"""Typed configs of the agents (spec §6.1, §6.5, §6.6, §6.7, §6.9, §6.12) and loading an agent yaml.
 
 The reference's agent yamls are the format. An unknown key, a wrong type or a missing required key is
 one `MimicKitError` naming the file and the key; numbers written like `1e-4` are numbers. Batch sizes
@@ -135,14 +135,22 @@ class AMPAgentConfig(PPOAgentConfig):
     """Samples per discriminator forward pass when computing rewards; 0 = all at once."""
 
 
+class ADDAgentConfig(AMPAgentConfig):
+    """AMP's fields (spec §6.9): the discriminator scores the difference reference − agent of the env's
+    ADD disc obs; a zero difference is its only positive sample."""
+
+    agent_name: Literal["ADD"] = "ADD"  # type: ignore[assignment]
+
+
 AGENT_CONFIGS: dict[str, type[BaseAgentConfig]] = {
     "PPO": PPOAgentConfig,
     "AWR": AWRAgentConfig,
     "AMP": AMPAgentConfig,
+    "ADD": ADDAgentConfig,
     "Dummy": DummyAgentConfig,
 }
 # Agents of the reference that are not ported yet; named in the error message.
-_NOT_YET = ("ASE", "ADD", "LCP", "SMP")
+_NOT_YET = ("ASE", "LCP", "SMP")
 
 
 def load_agent_config(path: str | Path) -> BaseAgentConfig:

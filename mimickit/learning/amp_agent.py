@@ -28,7 +28,7 @@ from mimickit.learning.agent_config import AMPAgentConfig
 from mimickit.learning.amp_model import AMPModel
 from mimickit.learning.experience_buffer import ExperienceBuffer
 from mimickit.learning.mp_optimizer import MPOptimizer
-from mimickit.learning.normalizer import Normalizer
+from mimickit.learning.normalizer import DiffNormalizer, Normalizer
 from mimickit.learning.ppo_agent import PPOAgent
 from mimickit.util.errors import MimicKitError
 
@@ -67,8 +67,10 @@ class AMPAgent(PPOAgent):
                 f"got {self._env.__class__.__name__}"
             )
         self._disc_env: DiscObsEnv = self._env
-        shape = self._disc_env.get_disc_obs_space().shape
-        self._disc_obs_norm = Normalizer(shape, device=self._device, clip=_DISC_OBS_CLIP)
+        self._disc_obs_norm = self._build_disc_obs_norm(self._disc_env.get_disc_obs_space().shape)
+
+    def _build_disc_obs_norm(self, shape: tuple[int, ...]) -> Normalizer | DiffNormalizer:
+        return Normalizer(shape, device=self._device, clip=_DISC_OBS_CLIP)
 
     def _build_model(self) -> None:
         disc_obs_size = math.prod(self._disc_env.get_disc_obs_space().shape)
@@ -111,8 +113,12 @@ class AMPAgent(PPOAgent):
         if self._need_normalizer_update():
             self._disc_obs_norm.record(demo)
 
+    def _disc_input_flat(self) -> torch.Tensor:
+        """The rollout's discriminator inputs before normalisation [T·N, disc_obs_dim] (AMP: disc obs)."""
+        return self._exp_buffer.get_data_flat("disc_obs")
+
     def _store_disc_replay_data(self) -> None:
-        disc_obs = self._exp_buffer.get_data_flat("disc_obs")
+        disc_obs = self._disc_input_flat()
         n = disc_obs.shape[0]
         buf = self._disc_buffer
         full = buf.get_total_samples() >= buf.capacity
@@ -124,14 +130,14 @@ class AMPAgent(PPOAgent):
         """Replace the stored env reward [T, N] by the weighted task + discriminator reward."""
         buf, cfg = self._exp_buffer, self.config
         task_r = buf.get_data("reward")
-        disc_r = self._calc_disc_rewards(buf.get_data_flat("disc_obs")).view_as(task_r)
+        disc_r = self._calc_disc_rewards(self._disc_input_flat()).view_as(task_r)
         std, mean = torch.std_mean(disc_r)
         buf.set_data("reward", cfg.task_reward_weight * task_r + cfg.disc_reward_weight * disc_r)
         return {"disc_reward_mean": mean.item(), "disc_reward_std": std.item()}
 
     @torch.no_grad()
     def _calc_disc_rewards(self, disc_obs: torch.Tensor) -> torch.Tensor:
-        """Unweighted discriminator reward [B] of raw disc obs [B, disc_obs_dim]."""
+        """Unweighted discriminator reward [B] of unnormalised disc inputs [B, disc_obs_dim] (ADD: differences)."""
         norm = self._disc_obs_norm.normalize(disc_obs)
         chunk = self.config.disc_eval_batch_size or max(norm.shape[0], 1)
         logits = torch.cat([self._model.eval_disc(x) for x in norm.split(chunk)])

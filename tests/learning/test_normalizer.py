@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from mimickit.learning.normalizer import Normalizer
+from mimickit.learning.normalizer import DiffNormalizer, Normalizer
 
 
 def test_running_mean_std_matches_numpy_over_several_updates():
@@ -47,3 +47,27 @@ def test_state_dict_keys_and_dtypes_match_the_reference():
     assert sd["_count"].dtype == torch.long and sd["_count"].shape == (1,)
     assert sd["_mean"].shape == (5,) and sd["_std"].shape == (5,)
     assert not any(p.requires_grad for p in norm.parameters())
+
+
+def test_diff_normalizer_scales_by_the_running_mean_abs_without_centring():
+    norm = DiffNormalizer((2,))
+    x = torch.tensor([[2.0, -8.0], [-4.0, 0.0]])
+    torch.testing.assert_close(norm.normalize(x), x)  # mean |x| starts at 1: raw differences
+    norm.record(x.view(2, 1, 2))  # leading dims are samples
+    norm.update()  # mean |x| = (3, 4)
+    torch.testing.assert_close(norm.get_mean_abs(), torch.tensor([3.0, 4.0]))
+    torch.testing.assert_close(norm.normalize(x), torch.tensor([[2 / 3, -2.0], [-4 / 3, 0.0]]))
+    assert torch.equal(norm.normalize(torch.zeros(2)), torch.zeros(2)), "zero stays zero (no mean shift)"
+    norm.record(torch.tensor([[6.0, 0.0]]))  # merged by counts: (2·3 + 6) / 3, (2·4 + 0) / 3
+    norm.update()
+    torch.testing.assert_close(norm.get_mean_abs(), torch.tensor([4.0, 8 / 3]))
+    assert norm.get_count() == 3
+    assert set(norm.state_dict()) == {"_count", "_mean_abs"}
+
+
+def test_diff_normalizer_floor_and_clip():
+    norm = DiffNormalizer((2,), clip=5.0)
+    norm.record(torch.tensor([[1e-6, 1.0]]))
+    norm.update()
+    # mean |x| 1e-6 is floored at 1e-4: 1e-3 / 1e-4 = 10, clipped to 5.
+    torch.testing.assert_close(norm.normalize(torch.tensor([1e-3, -7.0])), torch.tensor([5.0, -5.0]))
