@@ -51,13 +51,34 @@ def _motion_validate(args: argparse.Namespace) -> int:
 
 def _motion_convert(args: argparse.Namespace) -> int:
     from mimickit.anim.motion import save_motion
-    from mimickit.tools.deepmimic_convert import convert_deepmimic
+    from mimickit.tools.motion_convert import ConvertOptions, convert_motion
+    from mimickit.util.paths import set_data_dir
 
     if not args.out.endswith(".pkl"):
         raise MimicKitError(f"output must be a .pkl file, got {args.out}")
-    motion = convert_deepmimic(args.input)
+    set_data_dir(args.data_dir)
+    opts = ConvertOptions(
+        fmt=args.format,
+        char=args.char,
+        fps=args.fps,
+        loop=args.loop,
+        start_frame=args.start_frame,
+        end_frame=args.end_frame,
+        z_correction=args.z_correction,
+        up=args.up,
+        input_fps=args.input_fps,
+        root_rot_order=args.root_rot_order,
+    )
+    result = convert_motion(args.input, opts)
+    motion = result.motion
     save_motion(args.out, motion)
-    print(f"wrote {args.out}: {motion.num_frames} frames at {motion.fps:g} fps, loop {motion.loop_mode.name.lower()}")
+    line = (
+        f"wrote {args.out}: {motion.num_frames} frames at {motion.fps:g} fps ({motion.duration:.3f} s),"
+        f" loop {motion.loop_mode.name.lower()}"
+    )
+    if motion.fps != result.input_fps:
+        line += f"; resampled from {result.input_fps:g} fps"
+    print(f"{line} [{result.fmt}]")
     return 0
 
 
@@ -130,9 +151,27 @@ def build_parser() -> argparse.ArgumentParser:
     val.add_argument("--char", help="MJCF character the clips must fit")
     val.set_defaults(func=_motion_validate)
 
-    conv = msub.add_parser("convert", help="convert a DeepMimic text clip into a MimicKit humanoid .pkl")
-    conv.add_argument("input", help="DeepMimic humanoid3d clip (.txt, JSON)")
+    conv = msub.add_parser(
+        "convert", help="convert a DeepMimic .txt, an AMASS/SMPL .npz or a GMR robot motion into a MimicKit .pkl"
+    )
+    conv.add_argument("input", help="DeepMimic humanoid3d .txt, AMASS .npz, or GMR .pkl/.npz")
     conv.add_argument("out", help="output .pkl")
+    conv.add_argument(
+        "--format", default="auto", choices=["auto", "deepmimic", "amass", "gmr"], help="default: from the file"
+    )
+    conv.add_argument("--char", help="MJCF character (amass: default data/assets/smpl/smpl.xml; gmr: checks DoFs)")
+    conv.add_argument("--fps", type=float, help="resample to this frame rate (same duration; slerp for rotations)")
+    conv.add_argument("--loop", choices=["wrap", "clamp"], help="loop mode (default: the file's, else wrap)")
+    conv.add_argument("--start_frame", type=int, default=0, help="first input frame kept")
+    conv.add_argument("--end_frame", type=int, default=-1, help="input frame to stop before (-1: the end)")
+    conv.add_argument(
+        "--z_correction", default="calibrate", choices=["none", "calibrate", "full"],
+        help="amass: lowest body 2.5 cm above ground over the first 30 frames (calibrate) or all (full)",
+    )  # fmt: skip
+    conv.add_argument("--up", default="z", choices=["z", "y"], help="amass: up axis of the input world (AMASS: z)")
+    conv.add_argument("--input_fps", type=float, help="amass: frame rate when the file stores none")
+    conv.add_argument("--root_rot_order", default="xyzw", choices=["xyzw", "wxyz"], help="gmr: root_rot order")
+    conv.add_argument("--data_dir", help="a MimicKit data folder for data/... paths (the SMPL character)")
     conv.set_defaults(func=_motion_convert)
 
     ckpt = sub.add_parser("checkpoint", help="work with agent checkpoints (.pt)")

@@ -92,6 +92,18 @@ _MK_LAYOUT = [
     ("left_ankle", 3),
 ]
 
+
+def _expmap_columns() -> list[int]:
+    cols, c = [3], 6  # root rotation, then the 3-wide joints of the layout
+    for _, width in _MK_LAYOUT:
+        if width == 3:
+            cols.append(c)
+        c += width
+    return cols
+
+
+MK_EXPMAP_COLUMNS = _expmap_columns()  # first column of each exponential map in a MimicKit frame (resampling)
+
 _HALF = math.sqrt(0.5)
 _C = (_HALF, 0.0, 0.0, _HALF)  # R_x(+90°), x y z w: DeepMimic y-up → MimicKit z-up
 _SHOULDER_OFFSET = {"right_shoulder": (_HALF, 0.0, 0.0, _HALF), "left_shoulder": (-_HALF, 0.0, 0.0, _HALF)}
