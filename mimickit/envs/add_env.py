@@ -55,8 +55,7 @@ class ADDEnv(AMPEnv):
     def _demo_disc_obs(self, env_ids: torch.Tensor) -> torch.Tensor:
         """ADD features [n, disc_obs_dim] of the reference of the given envs, history ending now."""
         if self._num_disc_obs_steps == 1:  # the reference buffers already hold the clip at this time
-            hist = {k: self._ref[k][env_ids].unsqueeze(1) for k in ("root_pos", "root_rot", "root_vel",
-                    "root_ang_vel", "joint_rot", "dof_vel", "body_pos")}  # fmt: skip
+            hist = {k: self._ref[k][env_ids].unsqueeze(1) for k in self._disc_hist}
         else:
             hist = self._motion_history(self._motion_ids[env_ids], self.get_motion_time(env_ids))
         return self._disc_obs_from_hist(hist)
