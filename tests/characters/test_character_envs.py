@@ -114,6 +114,13 @@ def test_g1_is_hinge_only_and_its_actions_are_zero_centred() -> None:
     np.testing.assert_allclose((go2.get_action_space().low + go2.get_action_space().high) / 2, (lo + hi) / 2, atol=1e-6)
 
 
+def test_go2_engine_block_keeps_mimickits_ground_contact_height() -> None:
+    for kind in ("deepmimic", "amp"):
+        _, engine_cfg = load_env_configs(env_file(kind, "go2"), ENGINE)
+        assert engine_cfg.ground_contact_height == pytest.approx(0.15)
+        assert engine_cfg.engine_name == "mujoco" and engine_cfg.sim_freq == 240  # the rest from the engine yaml
+
+
 @pytest.mark.parametrize("char", CHARS)
 def test_engine_pd_gains_are_the_mjcf_joint_stiffness_and_damping(char: str, mimickit_data: Path) -> None:
     env = char_env(char, 1)
