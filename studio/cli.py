@@ -9,6 +9,7 @@ import argparse
 import shlex
 import socket
 import sys
+import warnings
 from pathlib import Path
 
 import uvicorn
@@ -38,7 +39,64 @@ def build_parser() -> argparse.ArgumentParser:
         default=shlex.join(DEFAULT_TRAINER),
         help="the command a run starts, before its --arg_file ... arguments (default: mimickit train)",
     )
+    replay = sub.add_parser(
+        "export-replay", help="write a clip or a policy rollout as one HTML file that plays offline in a browser"
+    )
+    replay.add_argument("--motion", help="a clip (.pkl) to replay")
+    replay.add_argument("--char", help="the MJCF character of --motion (default: guessed from its frame width)")
+    replay.add_argument("--model_file", help="a checkpoint (.pt): replay its deterministic policy in MuJoCo")
+    replay.add_argument("--env_config", help="env yaml of --model_file (default: the one beside it)")
+    replay.add_argument("--agent_config", help="agent yaml of --model_file (default: the one beside it)")
+    replay.add_argument("--engine_config", help="engine yaml of --model_file (default: the one beside it)")
+    replay.add_argument("--seconds", type=float, default=10.0, help="length of the policy rollout")
+    replay.add_argument("--no-follow", action="store_true", help="a fixed world; by default it moves with the root")
+    replay.add_argument("--data-dir", type=Path, help="a MimicKit data folder for data/... paths")
+    replay.add_argument("--out", required=True, help="F.html (standalone page) or F.viser (viser recording)")
     return parser
+
+
+def export_replay(args: argparse.Namespace) -> int:
+    from mimickit.util.paths import resolve_data_path, set_data_dir
+    from studio import replay  # imports viser, torch, mujoco: only when asked
+
+    if bool(args.motion) == bool(args.model_file):
+        raise MimicKitError("give either --motion CLIP [--char MJCF] or --model_file CHECKPOINT")
+    set_data_dir(args.data_dir)
+    replay.check_output(args.out)
+    if args.motion:
+        clip = resolve_data_path(args.motion)
+        with warnings.catch_warnings(record=True) as caught:  # e.g. NaN columns read as 0: one line each
+            warnings.simplefilter("always")
+            char = resolve_data_path(args.char) if args.char else _guess_char(clip, args.data_dir)
+            info = replay.export_clip_replay(clip, char, args.out, follow=not args.no_follow)
+        for w in {str(w.message) for w in caught}:
+            print(f"warning: {w}", file=sys.stderr)
+    else:
+        from studio.rollout import source_for_checkpoint
+
+        configs = {k: resolve_data_path(v) if (v := getattr(args, k)) else None for k in CONFIG_ARGS}
+        source = source_for_checkpoint(resolve_data_path(args.model_file), **configs)
+        source.data_dir = source.data_dir or args.data_dir
+        info = replay.export_policy_replay(source, args.out, seconds=args.seconds)
+    print(f"wrote {info.path}: {info.kind}, {info.frames} poses at {info.fps:g} Hz ({info.duration:.2f} s), "
+          f"{info.bytes / 1e6:.2f} MB")  # fmt: skip
+    return 0
+
+
+CONFIG_ARGS = ("env_config", "agent_config", "engine_config")
+
+
+def _guess_char(clip: Path, data_dir: Path | None) -> Path:
+    """The character whose DoF count fits the clip (as the studio's library guesses it)."""
+    from mimickit.anim.motion import load_motion
+    from mimickit.util.paths import resolve_data_path
+    from studio.library import Library
+
+    library = Library(Settings(data_dir=data_dir).resolved())
+    shown = library.character_for_width(load_motion(clip).frame_dim, clip)
+    if shown is None:
+        raise MimicKitError(f"{clip}: no character in the data folders fits it; name one with --char")
+    return resolve_data_path(shown)
 
 
 def serve(args: argparse.Namespace) -> int:
@@ -95,7 +153,7 @@ def serve(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return serve(args)
+        return export_replay(args) if args.command == "export-replay" else serve(args)
     except MimicKitError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

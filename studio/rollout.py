@@ -401,6 +401,11 @@ class RolloutPlayer:
                 },
             }
 
+    def history_qpos(self) -> list[np.ndarray]:
+        """Copies of the recorded qpos (the timeline), oldest first: what a replay export draws."""
+        with self._lock:
+            return [f.qpos.copy() for f in self.rollout.history]
+
     def history_rows(self, since_step: int = -1, limit: int = 5000) -> list[dict[str, Any]]:
         """Recorded steps after `since_step` with their reward and terms (episode starts left out)."""
         with self._lock:

@@ -197,6 +197,22 @@ $("speed").addEventListener("change", (ev) => playerCommand("configure", { speed
 $("loop").addEventListener("change", (ev) => playerCommand("configure", { loop: ev.target.checked }));
 $("follow").addEventListener("change", (ev) => playerCommand("configure", { follow: ev.target.checked }));
 
+// Export replay: the server writes a standalone HTML file of the clip or rollout shown; the browser downloads it.
+$("export-replay").addEventListener("click", async () => {
+  const button = $("export-replay");
+  button.disabled = true;
+  $("clip-label").textContent = "writing the replay…";
+  try {
+    const r = await api("POST", "/api/scene/export_replay", { follow: $("follow").checked });
+    $("clip-label").textContent = `replay: ${r.frames} poses, ${(r.bytes / 1e6).toFixed(2)} MB (${r.path})`;
+    el("a", { href: withToken(r.download), download: r.download.split("/").pop() }).click();
+  } catch (e) {
+    $("clip-label").textContent = `cannot export: ${e.message}`;
+  } finally {
+    button.disabled = false;
+  }
+});
+
 // MimicKit's keys: Enter plays/pauses, Space steps one frame (not while typing in a field).
 document.addEventListener("keydown", (ev) => {
   if (ev.target.closest && ev.target.closest("input, select, textarea, button, form")) return;

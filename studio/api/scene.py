@@ -3,10 +3,13 @@ and the scene's state. The playback commands drive whichever is loaded (`mode`: 
 
 from __future__ import annotations
 
+import re
+import time
 from pathlib import Path
 from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
 from mimickit.util.errors import MimicKitError
@@ -33,6 +36,12 @@ class LoadRollout(BaseModel):
     agent_config: str | None = Field(None, description="agent yaml, when the checkpoint has none beside it")
     engine_config: str | None = Field(None, description="engine yaml (default: the one beside the checkpoint)")
     play: bool = Field(True, description="start stepping at once")
+
+
+class ExportReplay(BaseModel):
+    path: str | None = Field(None, description="a clip to export; default: what the scene shows (clip or rollout)")
+    char: str | None = Field(None, description="the clip's MJCF character; guessed from its frame width if absent")
+    follow: bool = Field(True, description="the world moves with the character (as the player's follow)")
 
 
 class Step(BaseModel):
@@ -76,16 +85,8 @@ def load_clip(body: LoadClip, request: Request) -> dict[str, Any]:
     """Pose the clip on its character and show frame 0 (the character is rebuilt only if it changes)."""
     studio = studio_of(request)
     player = _player(request)
-    roots = studio.settings.readable_roots
-    clip = confine(body.path, roots)
-    char_path = body.char
-    if char_path is None:
-        info = next((m for m in studio.library.motions() if m["path"] in (body.path, str(clip))), None)
-        frame_dim = info.get("frame_dim") if info else None
-        char_path = studio.library.character_for_width(frame_dim, clip) if frame_dim else None
-        if char_path is None:
-            raise HTTPException(400, f"{body.path}: no character fits this clip; name one with `char`")
-    pose = pose_clip(clip, confine(char_path, roots))
+    clip = confine(body.path, studio.settings.readable_roots)
+    pose = pose_clip(clip, _char_for(studio, body.path, clip, body.char))
     studio.end_rollout()
     player.load(pose, play=body.play)
     return player.snapshot()
@@ -218,3 +219,60 @@ def state(request: Request) -> dict[str, Any]:
     Rollout mode: `rollout` with the checkpoint and its mtime, reloads, the step, the episode and its
     return, the last reward and reward terms, and the frame shown (the timeline is the history)."""
     return _target(request).snapshot()
+
+
+REPLAYS_DIR = "replays"
+_REPLAY_NAME = re.compile(r"^[A-Za-z0-9._-]+\.html$")
+
+
+@router.post("/export_replay")
+def export_replay(body: ExportReplay, request: Request) -> dict[str, Any]:
+    """Write a standalone HTML replay (one file, plays offline from `file://`) of a clip, or of what
+    the scene shows: the loaded clip, or the rollout's recorded timeline (the last 60 s). The file goes
+    to `<runs-dir>/replays/`; `download` is its URL."""
+    from studio import replay  # viser's serializer: only when asked
+
+    studio = studio_of(request)
+    out_dir = studio.settings.runs_dir / REPLAYS_DIR
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    if body.path is not None:
+        clip = confine(body.path, studio.settings.readable_roots)
+        char = _char_for(studio, body.path, clip, body.char)
+        out = out_dir / f"{_safe_stem(clip.stem)}-{stamp}.html"
+        info = replay.export_clip_replay(clip, char, out, follow=body.follow)
+    elif studio.rollout is not None:
+        name = studio.rollout.rollout.source.run_name or studio.rollout.rollout.source.checkpoint.stem
+        out = out_dir / f"rollout-{_safe_stem(name)}-{stamp}.html"
+        info = replay.export_player_rollout(studio.rollout, out, follow=body.follow)
+    elif studio.player is not None and studio.player.pose is not None:
+        pose = studio.player.pose
+        out = out_dir / f"{_safe_stem(pose.path.stem)}-{stamp}.html"
+        info = replay.write_clip_replay(pose, out, follow=body.follow)
+    else:
+        raise HTTPException(409, "nothing to export: load a clip or a rollout, or give `path`")
+    return {**info.to_json(), "download": f"/api/scene/replays/{out.name}"}
+
+
+@router.get("/replays/{name}")
+def download_replay(name: str, request: Request) -> FileResponse:
+    """A replay written by `export_replay`, as a download."""
+    path = studio_of(request).settings.runs_dir / REPLAYS_DIR / name
+    if not _REPLAY_NAME.match(name) or not path.is_file():
+        raise HTTPException(404, f"no replay named {name!r}")
+    return FileResponse(path, media_type="text/html", filename=name)
+
+
+def _char_for(studio: Any, shown: str, clip: Path, char: str | None) -> Path:
+    """`char` (confined), else the character whose DoF count fits the clip."""
+    roots = studio.settings.readable_roots
+    if char is not None:
+        return confine(char, roots)
+    info = next((m for m in studio.library.motions() if m["path"] in (shown, str(clip))), None)
+    guessed = studio.library.character_for_width(info["frame_dim"], clip) if info and info.get("frame_dim") else None
+    if guessed is None:
+        raise HTTPException(400, f"{shown}: no character fits this clip; name one with `char`")
+    return confine(guessed, roots)
+
+
+def _safe_stem(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name)[:80] or "replay"
