@@ -70,8 +70,8 @@ class DeepMimicEnv(CharEnv):
         self._reward_scales = {t: getattr(config, f"reward_{t}_scale") for t in TERM_NAMES}
         steps = config.tar_obs_steps if config.enable_tar_obs else []
         self._ref_steps = torch.tensor([0, *steps], dtype=torch.float32, device=dev)
-        self._ref: dict[str, torch.Tensor] = {}
-        self._tar: dict[str, torch.Tensor] = {}
+        self._all_env_ids = torch.arange(n, device=dev)
+        self._frames: dict[str, torch.Tensor] = {}
         self._eval_ref(torch.arange(n, device=dev), self._motion_time_offsets)
         self._ref_char_offset = torch.tensor(config.ref_char_offset, dtype=torch.float32, device=dev)
 
@@ -108,35 +108,55 @@ class DeepMimicEnv(CharEnv):
         return {k: v / self._tracking_count for k, v in self._tracking_sum.items()}
 
     # ------------------------------------------------------------- reference
-    def _eval_ref(self, env_ids: torch.Tensor, times: torch.Tensor) -> None:
-        """Evaluate the clip at `times` [n] and at the target-observation steps ahead, with one MotionLib
-        call and one FK for all of them, into the reference buffers [N, ...] and target buffers [N, S, ...]."""
-        n, s = len(env_ids), len(self._ref_steps)
-        all_times = (times.unsqueeze(-1) + self._engine.get_timestep() * self._ref_steps).flatten()
+    # The clip is evaluated at the motion time and at the target steps ahead: frames [N, S, ...] with
+    # column 0 "now". `_ref` and `_tar` are views into these buffers. A control step advances every
+    # env by one column, so when the steps are 0, 1, ..., S-1 the buffers shift and only the newest
+    # column needs the MotionLib and FK: a quarter of the work for the humanoid's [1, 2, 3].
+    def _eval_frames(self, env_ids: torch.Tensor, times: torch.Tensor, steps: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The clip at `times` [n] + steps × dt with one MotionLib call and one FK: {key: [n, len(steps), ...]}."""
+        n, s = len(env_ids), len(steps)
+        all_times = (times.unsqueeze(-1) + self._engine.get_timestep() * steps).flatten()
         f = self._motion_lib.calc_motion_frame(self._motion_ids[env_ids].repeat_interleave(s), all_times)
         body_pos, body_rot = self._char_model.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
-        view = lambda x: x.view(n, s, *x.shape[1:])  # noqa: E731
-        now = {
+        values = {
             "root_pos": f.root_pos, "root_rot": f.root_rot, "root_vel": f.root_vel, "root_ang_vel": f.root_ang_vel,
-            "joint_rot": f.joint_rot, "dof_vel": f.dof_vel, "body_pos": body_pos, "body_rot": body_rot,
+            "joint_rot": f.joint_rot, "dof_pos": self._char_model.rot_to_dof(f.joint_rot), "dof_vel": f.dof_vel,
+            "body_pos": body_pos, "body_rot": body_rot,
         }  # fmt: skip
-        now = {k: view(v)[:, 0] for k, v in now.items()}
-        now["dof_pos"] = self._char_model.rot_to_dof(now["joint_rot"])
-        ahead = {
-            "root_pos": view(f.root_pos)[:, 1:], "root_rot": view(f.root_rot)[:, 1:],
-            "joint_rot": view(f.joint_rot)[:, 1:], "key_pos": view(body_pos)[:, 1:, self._key_body_ids],
-        }  # fmt: skip
-        for buf, values in ((self._ref, now), (self._tar, ahead)):
-            for k, v in values.items():
-                if k not in buf:
-                    buf[k] = torch.zeros(self.num_envs, *v.shape[1:], device=self.device)
-                buf[k][env_ids] = v
+        return {k: v.view(n, s, *v.shape[1:]) for k, v in values.items()}
+
+    def _eval_ref(self, env_ids: torch.Tensor, times: torch.Tensor) -> None:
+        """Evaluate every column for `env_ids` (resets, first build)."""
+        frames = self._eval_frames(env_ids, times, self._ref_steps)
+        if not self._frames:
+            self._alloc_frames(frames)
+        for k, v in frames.items():
+            self._frames[k][env_ids] = v
+
+    def _alloc_frames(self, like: dict[str, torch.Tensor]) -> None:
+        self._frames = {k: torch.zeros(self.num_envs, *v.shape[1:], device=self.device) for k, v in like.items()}
+        self._ref = {k: v[:, 0] for k, v in self._frames.items()}
+        self._tar = {k: self._frames[k][:, 1:] for k in ("root_pos", "root_rot", "joint_rot", "body_pos")}
+        s = len(self._ref_steps)
+        self._can_shift = bool(torch.equal(self._ref_steps, torch.arange(s, dtype=self._ref_steps.dtype)))
+
+    def _advance_ref(self) -> None:
+        """All envs moved one control step on: shift the columns and evaluate only the newest."""
+        if not self._can_shift or len(self._ref_steps) == 1:
+            self._eval_ref(self._all_env_ids, self.get_motion_time())
+            return
+        newest = self._eval_frames(self._all_env_ids, self.get_motion_time(), self._ref_steps[-1:])
+        for k, buf in self._frames.items():
+            buf[:, :-1] = buf[:, 1:].clone()
+            buf[:, -1:] = newest[k]
 
     def _update_ref(self, env_ids: torch.Tensor | None = None) -> None:
-        ids = torch.arange(self.num_envs, device=self.device) if env_ids is None else env_ids
-        self._eval_ref(ids, self.get_motion_time(ids))
+        if env_ids is None:
+            self._advance_ref()
+        else:
+            self._eval_ref(env_ids, self.get_motion_time(env_ids))
         if self._enable_ref_char:
-            self._pose_ref_char(ids)
+            self._pose_ref_char(self._all_env_ids if env_ids is None else env_ids)
 
     def _pose_ref_char(self, env_ids: torch.Tensor) -> None:
         e, c = self._engine, self._ref_char_id
@@ -183,6 +203,7 @@ class DeepMimicEnv(CharEnv):
     def _compute_tar_obs(self, ids: torch.Tensor) -> torch.Tensor:
         """Target frames from the buffers `_eval_ref` filled for the current motion time."""
         tar = {k: v[ids] for k, v in self._tar.items()}
+        tar["key_pos"] = tar.pop("body_pos")[:, :, self._key_body_ids]
         if self.config.global_obs:
             ref_pos, ref_rot = self._engine.get_root_pos(self._char_id)[ids], tar["root_rot"][:, 0]
         else:

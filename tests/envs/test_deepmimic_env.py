@@ -147,3 +147,19 @@ def test_bench_json_reports_ratio():
     assert {"num_envs", "substeps", "env_steps_per_s", "raw_sim_steps_per_s", "ratio"} <= set(out)
     assert out["num_envs"] == 8 and out["substeps"] == 8
     assert out["ratio"] == pytest.approx(out["env_steps_per_s"] * 8 / out["raw_sim_steps_per_s"], rel=1e-3)
+
+
+def test_shifted_reference_equals_full_evaluation():
+    """Per step only the newest target column is evaluated; the shifted buffers must equal a fresh
+    evaluation of every column at the current motion time, across resets of some envs."""
+    env = make(DEEPMIMIC, num_envs=6)
+    env.reset()
+    for i in range(12):
+        env.step(torch.zeros(6, env.get_action_space().shape[0]))
+        if i == 4:
+            env.reset(torch.tensor([1, 3]))
+    shifted = {k: v.clone() for k, v in env._frames.items()}
+    ids = torch.arange(6)
+    fresh = env._eval_frames(ids, env.get_motion_time(ids), env._ref_steps)
+    for k, v in fresh.items():
+        torch.testing.assert_close(shifted[k], v, atol=1e-4, rtol=0, msg=k)
