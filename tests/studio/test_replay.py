@@ -75,7 +75,7 @@ def test_clip_replay_holds_every_frame_and_grows_with_frames(tmp_path: Path) -> 
         sizes[n] = info.bytes
     assert sizes[91] > sizes[10] + 20_000  # ~0.4 kB of pose updates per frame after compression
     html = (tmp_path / "r91.html").read_text()
-    assert html.startswith("<!doctype html>") or html.lower().startswith("<!doctype html>")
+    assert html.lower().startswith("<!doctype html>")
     assert "http://" not in html.replace("http://www.w3.org", "") and "https://" not in html  # offline
 
 
