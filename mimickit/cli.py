@@ -87,7 +87,7 @@ def _bench(args: argparse.Namespace) -> int:
     from mimickit.util.paths import set_data_dir
 
     set_data_dir(args.data_dir)
-    results = [run_bench(args.engine_config, args.env_config, n, args.steps) for n in args.num_envs]
+    results = [run_bench(args.engine_config, args.env_config, n, args.steps, rounds=args.rounds) for n in args.num_envs]
     if args.json:
         print(json.dumps(results[0] if len(results) == 1 else results))
     else:
@@ -187,6 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--env_config", default="data/envs/deepmimic_humanoid_env.yaml")
     bench.add_argument("--num_envs", type=int, nargs="+", default=[256], help="one or more env counts")
     bench.add_argument("--steps", type=int, default=100, help="control steps measured per env count")
+    bench.add_argument(
+        "--rounds", type=int, default=5, help="env and raw measurements alternate this many times (noisy machines)"
+    )
     bench.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
     bench.add_argument("--json", action="store_true", help="print JSON (one object, or a list for several counts)")
     bench.set_defaults(func=_bench)

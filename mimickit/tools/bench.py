@@ -9,17 +9,21 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import numpy as np
 import torch
 
 from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.env_builder import build_env
 
 
-def run_bench(engine_config: str, env_config: str, num_envs: int, steps: int, warmup: int = 10) -> dict[str, Any]:
+def run_bench(
+    engine_config: str, env_config: str, num_envs: int, steps: int, warmup: int = 10, rounds: int = 5
+) -> dict[str, Any]:
+    """Env steps and raw rollout calls alternate in `rounds` rounds of steps/rounds control steps each,
+    so a load that comes and goes on a shared machine weighs on both figures alike."""
     env = build_env(env_config, engine_config, num_envs, "cpu")
     space = env.get_action_space()
-    low = torch.as_tensor(space.low)
-    high = torch.as_tensor(space.high)
+    low, high = torch.as_tensor(space.low), torch.as_tensor(space.high)
     gen = torch.Generator().manual_seed(0)
     env.reset()
 
@@ -30,38 +34,47 @@ def run_bench(engine_config: str, env_config: str, num_envs: int, steps: int, wa
         if len(ended):
             env.reset(ended)
 
+    engine = env.engine
+    substeps = engine.config.substeps
+    rounds = max(1, min(rounds, steps))
+    per_round = [steps // rounds + (r < steps % rounds) for r in range(rounds)]
+    env_time, raw_time, ratios = 0.0, 0.0, []
     with torch.inference_mode():  # as in a training rollout: no autograd bookkeeping
         for _ in range(warmup):
             one_step()
+        raw = _raw_rollout(engine, substeps)
         env.profiler.reset()
-        env.profiler.enabled = True
-        start = time.perf_counter()
-        for _ in range(steps):
-            one_step()
-        elapsed = time.perf_counter() - start
-        env.profiler.enabled = False
-
-    engine = env.engine
-    substeps = engine.config.substeps
-    raw = raw_throughput(engine, steps * substeps, substeps)
-    env_sps = steps * num_envs / elapsed
+        for n in per_round:
+            env.profiler.enabled = True
+            start = time.perf_counter()
+            for _ in range(n):
+                one_step()
+            t_env = time.perf_counter() - start
+            env.profiler.enabled = False
+            t_raw = sum(raw.step(np.zeros((num_envs, engine.mj_model.nu))) for _ in range(n))
+            env_time, raw_time = env_time + t_env, raw_time + t_raw
+            ratios.append(t_raw / t_env)
+        raw.close()
+    env_sps = steps * num_envs / env_time
+    raw_sps = steps * num_envs * substeps / raw_time
     return {
         "num_envs": num_envs,
         "steps": steps,
         "substeps": substeps,
         "env_steps_per_s": round(env_sps, 1),
-        "raw_sim_steps_per_s": round(raw, 1),
-        "ratio": round(env_sps * substeps / raw, 4),
+        "raw_sim_steps_per_s": round(raw_sps, 1),
+        "ratio": round(env_sps * substeps / raw_sps, 4),
+        "ratio_per_round": [round(r, 4) for r in ratios],
         "profile": {k: round(v, 4) for k, v in env.profiler.shares().items()},
     }
 
 
-def raw_throughput(engine: Any, nsteps: int, substeps: int) -> float:
-    """Raw `mujoco.rollout` sim steps/s on all cores over the engine's own compiled model and its envs'
-    current states, called once per control step of `substeps` physics steps (state fed back)."""
-    from mimickit.engines.bench_util import raw_rollout_steps_per_s
+def _raw_rollout(engine: Any, substeps: int) -> Any:
+    """Raw `mujoco.rollout` on all cores over the engine's own compiled model and its envs' current
+    states, one call per control step of `substeps` physics steps (state fed back)."""
+    from mimickit.engines.bench_util import RawRollout
 
-    return raw_rollout_steps_per_s(engine.mj_model, engine.mj_datas, nsteps, engine.num_threads, substeps=substeps)
+    return RawRollout(engine.mj_model, engine.mj_datas, engine.num_threads, substeps)
 
 
 def format_bench(result: dict[str, Any]) -> str:
@@ -69,7 +82,8 @@ def format_bench(result: dict[str, Any]) -> str:
         f"{result['num_envs']} envs × {result['steps']} steps, {result['substeps']} substeps",
         f"  env steps/s         {result['env_steps_per_s']:>12,.0f}",
         f"  raw sim steps/s     {result['raw_sim_steps_per_s']:>12,.0f}",
-        f"  ratio               {result['ratio']:>12.3f}",
+        f"  ratio               {result['ratio']:>12.3f}   per round: "
+        + " ".join(f"{r:.2f}" for r in result["ratio_per_round"]),
         "  time share of env steps: " + ", ".join(f"{k} {v:.0%}" for k, v in result["profile"].items()),
     ]
     return "\n".join(lines)
