@@ -1,7 +1,7 @@
 """MimicKit's other characters (SMPL humanoid, Unitree G1, Unitree Go2) on the MuJoCo engine, through the
 project's env yamls (data/envs/*_{smpl,g1,go2}_env.yaml) with MimicKit's assets and clips from
 `$MIMICKIT_TEST_DATA`: sizes, PD stance, clip playback against kinematic FK, reference-state reward, AMP
-disc obs and the arg files."""
+and ADD disc obs and the arg files."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ import torch
 
 from mimickit.anim.kin_char_model import JointType
 from mimickit.anim.mjcf_loader import load_mjcf_model
+from mimickit.envs.add_env import ADDEnv
 from mimickit.envs.amp_env import AMPEnv
 from mimickit.envs.char_env import CharEnv
 from mimickit.envs.env_builder import build_env
@@ -43,6 +44,7 @@ class Char:
     obs: int  # DeepMimic observation size
     char_obs: int  # AMP / view_motion observation size (character observation only)
     disc_obs: int  # AMP discriminator observation size (10 history steps)
+    add_disc_obs: int  # ADD discriminator observation size (one step, all bodies: spec §5.6)
     # PD gain factor for the stance test. MimicKit's gains are sized for policies, not for standing still
     # on zero actions: with them the G1 (ankles 2 × 28.5 N·m/rad under a 36 kg, 0.7 m inverted pendulum,
     # m·g·h ≈ 250 N·m/rad) topples, the SMPL humanoid (ankles, toes, knees and hips in series) leans over
@@ -52,10 +54,13 @@ class Char:
 
 
 CHARS = {
-    "smpl": Char("smpl", bodies=24, dofs=69, key_bodies=5, obs=721, char_obs=235, disc_obs=2370, stance_gain=2.0),
-    "g1": Char("g1", bodies=31, dofs=29, key_bodies=5, obs=849, char_obs=237, disc_obs=2390, stance_gain=10.0),
-    "go2": Char("go2", bodies=17, dofs=12, key_bodies=4, obs=484, char_obs=133, disc_obs=1350, stance_gain=3.0),
-}
+    "smpl": Char("smpl", bodies=24, dofs=69, key_bodies=5, obs=721, char_obs=235, disc_obs=2370, add_disc_obs=294,
+                 stance_gain=2.0),
+    "g1": Char("g1", bodies=31, dofs=29, key_bodies=5, obs=849, char_obs=237, disc_obs=2390, add_disc_obs=317,
+               stance_gain=10.0),
+    "go2": Char("go2", bodies=17, dofs=12, key_bodies=4, obs=484, char_obs=133, disc_obs=1350, add_disc_obs=174,
+                stance_gain=3.0),
+}  # fmt: skip
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -98,6 +103,28 @@ def test_observation_action_and_disc_sizes(char: str) -> None:
     assert info["disc_obs"].shape == (2, c.disc_obs)
     demo = amp.fetch_disc_obs_demo(8)
     assert demo.shape == (8, c.disc_obs) and torch.isfinite(demo).all()
+
+
+@pytest.mark.parametrize("char", CHARS)
+def test_add_env_sizes_and_reference_state_differences(char: str) -> None:
+    c = CHARS[char]
+    env = build_env(env_file("add", char), ENGINE, 2)
+    assert isinstance(env, ADDEnv) and env.get_num_disc_obs_steps() == 1
+    # DeepMimic's observation and actions; disc obs per spec §5.6: root pos, root rot tan-norm, (J-1) joint
+    # tan-norms, every body's position, root vel, root ang vel, dof vel.
+    assert env.get_obs_space().shape == (c.obs,) and env.get_action_space().shape == (c.dofs,)
+    add_disc = 3 + 6 + 6 * (c.bodies - 1) + 3 * c.bodies + 3 + 3 + c.dofs
+    assert env.get_disc_obs_space().shape == (add_disc,) == (c.add_disc_obs,)
+    _, info = env.reset()
+    assert info["disc_obs"].shape == info["disc_obs_demo"].shape == (2, c.add_disc_obs)
+    # Reference-state init: the character sits on its reference, so the difference the disc sees is ~0
+    # (velocities included), and the tracking errors are logged as for the humanoid.
+    diff = (info["disc_obs_demo"] - info["disc_obs"]).abs().max().item()
+    assert diff < 1e-3, f"{char}: reset difference {diff:.2e}"
+    assert info["tracking"]["body_pos_err"].max() < 1e-4
+    _, _, _, info = env.step(torch.zeros(2, c.dofs))
+    diff = (info["disc_obs_demo"] - info["disc_obs"]).abs()
+    assert torch.isfinite(diff).all() and diff.max() > 1e-4, "zero actions drift from the clip: the disc sees it"
 
 
 def test_g1_is_hinge_only_and_its_actions_are_zero_centred() -> None:
@@ -194,7 +221,7 @@ def test_reference_state_init_scores_one(char: str) -> None:
     assert info["tracking"]["body_pos_err"].max() < 1e-4
 
 
-ARG_FILES = [f"{kind}_{char}_args.txt" for char in CHARS for kind in ("deepmimic", "amp")]
+ARG_FILES = [f"{kind}_{char}_args.txt" for char in CHARS for kind in ("deepmimic", "amp", "add")]
 
 
 @pytest.mark.parametrize("arg_file", [a.replace("_args", "_ppo_args") if "deepmimic" in a else a for a in ARG_FILES])
