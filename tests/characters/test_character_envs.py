@@ -46,10 +46,8 @@ class Char:
     disc_obs: int  # AMP discriminator observation size (10 history steps)
     add_disc_obs: int  # ADD discriminator observation size (one step, all bodies: spec §5.6)
     # PD gain factor for the stance test. MimicKit's gains are sized for policies, not for standing still
-    # on zero actions: with them the G1 (ankles 2 × 28.5 N·m/rad under a 36 kg, 0.7 m inverted pendulum,
-    # m·g·h ≈ 250 N·m/rad) topples, the SMPL humanoid (ankles, toes, knees and hips in series) leans over
-    # and the Go2 (kp 15) sags 9 cm onto its calves. Raised just past that, the test checks what it can:
-    # the init pose is a stance the engine's model (masses, contacts, joint frames) can hold.
+    # on zero actions (figures in the test's docstring). Raised just past that, the test checks what it
+    # can: the init pose is a stance the engine's model (masses, contacts, joint frames) can hold.
     stance_gain: float
 
 
@@ -170,6 +168,12 @@ def _scale_pd_gains(env: CharEnv, factor: float) -> None:
 
 @pytest.mark.parametrize("char", CHARS)
 def test_init_pose_is_a_stance_pd_holds_for_five_seconds(char: str) -> None:
+    """Physics, not the engine (kp/kv = MJCF stiffness/damping, ± actuatorfrcrange, armature and frictionloss
+    kept, passive springs zeroed): G1: 34.7 kg sits 0.672 m over the ankle axes, m·g·h = 229 N·m/rad vs
+    2 × kp 28.5 (waist pitch 24.8 vs kp 28.5); it falls within 2 s, and holds with legs and waist ×10, arms
+    unscaled. Go2: the calves carry 5.6 / 8.2 N·m (front / rear) = kp 15 × 0.38 / 0.51 rad of error, an
+    8.8 cm sag. SMPL: the ankles give way first (0.8 s; m·g·h 446 vs 2 × kp 400 with knee and hip compliance
+    in series); ankles ×2 alone hold."""
     env = char_env(char, 2)
     _scale_pd_gains(env, CHARS[char].stance_gain)
     env.reset()
