@@ -27,7 +27,14 @@ def build_engine(
 
         return MujocoEngine(config, num_envs, device, visualize)
     if config.engine_name == "newton":
-        raise MimicKitError(
-            "the Newton engine is not built yet; when it is, it will need the optional extra: pip install .[newton]"
-        )
+        try:
+            from mimickit.engines.newton_engine import NewtonEngine
+        except ImportError as exc:  # the optional extra is missing (or broken): say how to install it
+            raise MimicKitError(
+                f"{source}: the Newton engine needs the optional extra: pip install .[newton] "
+                f"(in its own venv, as `make test-newton` builds .venv-newton: newton[sim] pins mujoco 3.17); "
+                f"import failed: {exc}"
+            ) from exc
+
+        return NewtonEngine(config, num_envs, device, visualize)
     raise MimicKitError(f"{source}: unknown engine '{config.engine_name}'")  # unreachable: the config checks it

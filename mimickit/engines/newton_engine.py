@@ -1,0 +1,658 @@
+"""The Newton engine: N worlds of one scene stepped by Newton's SolverMuJoCo (mujoco_warp) (spec §2, §11).
+
+Build (spec §11.1, on the Newton 1.8 API): each distinct object gets one sub-builder from its MJCF
+(`add_mjcf`, 3-hinge bodies → one ball joint, as the MuJoCo engine does); every env is one Newton world
+(`begin_world` / `add_builder` / `end_world`) next to one global ground plane; `finalize` on the warp
+device (the CPU here; CUDA where there is one). PD gains come from the MJCF joint stiffness/damping via
+the kinematic model (the same numbers the MuJoCo engine uses); they are moved into Newton's joint-target
+gains and the passive stiffness/damping is zeroed **before** the solver is built, since SolverMuJoCo
+creates its MuJoCo actuators at construction.
+
+Differences from the reference Newton engine (its defects, spec §11.4, fixed here):
+* `disable_motors` is honoured: the object's DoFs get no actuator (JointTargetMode.NONE).
+* `pd_explicit` computes τ = kp (q* − q) − kd q̇ in torch on DoF-sized tensors (not on mixed q/qd warp
+  arrays), clipped to the torque limit, and applies it through `control.joint_f` every substep; like the
+  MuJoCo engine it accepts hinge-only characters.
+* Torque commands are clipped to the torque limit (Newton's EFFORT mode applies joint_f unclipped).
+Ball joints stay unlimited, as in the MuJoCo engine (both mirror Newton's MJCF import): the per-axis hinge
+ranges only bound actions. Enforcing them in one engine alone would make the two disagree.
+
+State: the solver steps the state in place; after a control step the raw warp arrays (joint_q, joint_qd,
+body_q, body_qd, as zero-copy torch views) are converted into per-object torch buffers, which the
+getters return (they are refreshed in place, so they stay live). Newton already uses the framework's
+conventions: quaternions xyzw, free-joint and body linear velocities at the centre of mass in world
+frame, angular velocities in world frame, ball-joint velocities in the child frame. Ball-joint
+quaternions are exposed as exp-maps. Setters write joint_q/joint_qd and mark the state dirty; the next
+getter or step re-runs forward kinematics.
+
+Ground contact forces: `SensorContact` on every body of the non-visual objects with the ground plane as
+the one counterpart, fed by the solver's CONTACT_F observable after the last substep.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mimickit.anim.kin_char_model import JointType, KinCharModel
+from mimickit.anim.mjcf_char_model import load_char_model
+from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, ObjType
+from mimickit.util import torch_util as tu
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import resolve_data_path
+
+try:  # an optional extra: the builder reports a missing install with the command that fixes it
+    import newton
+    import warp as wp
+    from newton.sensors import SensorContact
+except ImportError as exc:  # pragma: no cover - exercised only without the extra
+    raise ImportError(
+        "the Newton engine needs the optional extra: pip install -e '.[newton]' (in its own venv, "
+        "e.g. `make test-newton` builds .venv-newton; newton[sim] pins mujoco 3.17)"
+    ) from exc
+
+wp.config.enable_backward = False  # no gradients: smaller, faster kernels
+wp.config.quiet = True
+
+GROUND_LABEL = "ground_plane"
+
+
+# ---------------------------------------------------------------------------------------------- records
+@dataclass
+class _ObjRecord:
+    """What `create_obj` was asked for; identical in every env except the start pose."""
+
+    obj_type: ObjType
+    asset_file: str
+    name: str
+    is_visual: bool
+    enable_self_collisions: bool
+    fix_root: bool
+    disable_motors: bool
+
+    def signature(self) -> tuple:
+        return (self.obj_type, self.asset_file, self.is_visual, self.enable_self_collisions, self.fix_root,
+                self.disable_motors)  # fmt: skip
+
+
+@dataclass
+class _ObjLayout:
+    """Where an object lives inside one world. Indices are per world (add `world * stride`)."""
+
+    kin: KinCharModel
+    bodies: slice  # body rows
+    root_q: int  # joint_q column of the free root joint, -1 for a fixed root
+    root_qd: int  # its joint_qd column, -1 for a fixed root
+    hinge_cols: torch.Tensor  # [H] DoF columns of hinges
+    hinge_q: torch.Tensor  # [H] their joint_q columns
+    ball_cols: torch.Tensor  # [K, 3] DoF columns of ball joints (exp-map components)
+    ball_q: torch.Tensor  # [K, 4] their joint_q columns (quaternion xyzw)
+    dof_qd: torch.Tensor  # [D] joint_qd column of every DoF
+    actuated: bool
+    kp: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [D] gains as used by the control mode
+    kd: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def num_dofs(self) -> int:
+        return len(self.dof_qd)
+
+    @property
+    def num_bodies(self) -> int:
+        return self.bodies.stop - self.bodies.start
+
+
+_STATE_SHAPES = {
+    "body_pos": 3, "body_rot": 4, "body_vel": 3, "body_ang_vel": 3, "contact_forces": 3, "ground_contact_forces": 3,
+}  # fmt: skip
+
+
+class _ObjState:
+    """One object's getter tensors: body_* / *contact_forces [N, B, 3|4], dof_pos/dof_vel/dof_forces [N, D];
+    root_* are views of body 0 (the root is body 0)."""
+
+    def __init__(self, n: int, b: int, d: int, device: torch.device):
+        self.t = {k: torch.zeros(n, b, w, device=device) for k, w in _STATE_SHAPES.items()}
+        self.t["body_rot"][..., 3] = 1.0
+        for k in ("dof_pos", "dof_vel", "dof_forces"):
+            self.t[k] = torch.zeros(n, d, device=device)
+        for root, body in (("root_pos", "body_pos"), ("root_rot", "body_rot"), ("root_vel", "body_vel"),
+                           ("root_ang_vel", "body_ang_vel")):  # fmt: skip
+            self.t[root] = self.t[body][:, 0]
+
+
+# ---------------------------------------------------------------------------------------------- engine
+class NewtonEngine(Engine):
+    """Newton (SolverMuJoCo) on the warp device; see the module docstring. Tensor shapes as in `Engine`."""
+
+    def __init__(self, config: EngineConfig, num_envs: int, device: torch.device | str, visualize: bool = False):
+        super().__init__(config, num_envs, device, visualize)
+        self._env_objs: list[list[_ObjRecord]] = []
+        self._start_poses: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per env, per obj: (pos, xyzw)
+        self._kin_cache: dict[str, KinCharModel] = {}
+        # warp runs on CUDA only when the torch device is CUDA; kernels otherwise compile for the CPU
+        self._wp_device = "cuda:0" if self._device.type == "cuda" else "cpu"
+        self.model = None
+        self._sim_time = 0.0
+
+    def get_name(self) -> str:
+        return "newton"
+
+    # ------------------------------------------------------------------ creation
+    def create_env(self) -> int:
+        env_id = len(self._env_objs)
+        if env_id >= self._num_envs:
+            raise MimicKitError(f"create_env: all {self._num_envs} envs already exist")
+        self._env_objs.append([])
+        self._start_poses.append([])
+        return env_id
+
+    def create_obj(
+        self,
+        env_id: int,
+        obj_type: ObjType,
+        asset_file: str,
+        name: str,
+        is_visual: bool = False,
+        enable_self_collisions: bool = True,
+        fix_root: bool = False,
+        start_pos: np.ndarray | None = None,
+        start_rot: np.ndarray | None = None,
+        color: np.ndarray | None = None,
+        disable_motors: bool = False,
+    ) -> int:
+        if self.model is not None:
+            raise MimicKitError("create_obj: the simulation is already initialized")
+        if not 0 <= env_id < len(self._env_objs):
+            raise MimicKitError(f"create_obj: env {env_id} was not created (call create_env first)")
+        path = str(resolve_data_path(asset_file))
+        if not Path(path).is_file():
+            raise MimicKitError(f"asset file not found: {path}")
+        rec = _ObjRecord(ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root, disable_motors)
+        pos = np.zeros(3) if start_pos is None else np.asarray(start_pos, dtype=np.float64).reshape(3)
+        rot = np.array([0.0, 0.0, 0.0, 1.0]) if start_rot is None else np.asarray(start_rot, np.float64).reshape(4)
+        self._env_objs[env_id].append(rec)
+        self._start_poses[env_id].append((pos, rot / np.linalg.norm(rot)))
+        return len(self._env_objs[env_id]) - 1
+
+    def initialize_sim(self) -> None:
+        objs = self._check_env_objects()
+        if self._config.control_mode == ControlMode.pd_explicit:
+            self._check_pd_explicit(objs)
+        self.model = self._build_model(objs)
+        self._layouts = self._build_layouts(objs)
+        self._set_gains(objs)  # before the solver: SolverMuJoCo builds its actuators from these
+        self._build_solver()
+        self._bind_state()
+        self._place_start_poses()
+        self._states = [_ObjState(self._num_envs, lay.num_bodies, lay.num_dofs, self._device) for lay in self._layouts]
+        self._cmd = [torch.zeros(self._num_envs, lay.num_dofs, device=self._device) for lay in self._layouts]
+        self._dirty = True
+        self._refresh()
+
+    def _check_env_objects(self) -> list[_ObjRecord]:
+        if len(self._env_objs) != self._num_envs:
+            raise MimicKitError(f"initialize_sim: {len(self._env_objs)} of {self._num_envs} envs were created")
+        objs = self._env_objs[0]
+        for e, env_objs in enumerate(self._env_objs):
+            if [o.signature() for o in env_objs] != [o.signature() for o in objs]:
+                raise MimicKitError(
+                    f"env {e} has different objects than env 0; the Newton engine needs identical object lists"
+                )
+        return objs
+
+    def _check_pd_explicit(self, objs: list[_ObjRecord]) -> None:
+        for rec in objs:
+            kin = self._kin_model(rec.asset_file)
+            if any(j.type == JointType.SPHERICAL for j in kin.joints[1:]):
+                raise MimicKitError(
+                    f"control_mode pd_explicit supports joints with at most one DoF; '{rec.asset_file}' has "
+                    "spherical joints (use control_mode pos)"
+                )
+
+    def _kin_model(self, asset_file: str) -> KinCharModel:
+        if asset_file not in self._kin_cache:
+            self._kin_cache[asset_file] = load_char_model(asset_file)
+        return self._kin_cache[asset_file]
+
+    def _new_builder(self) -> newton.ModelBuilder:
+        b = newton.ModelBuilder()
+        newton.solvers.SolverMuJoCo.register_custom_attributes(b)
+        b.default_shape_cfg.mu = 1.0  # the MuJoCo engine's floor friction
+        return b
+
+    def _object_builder(self, rec: _ObjRecord, pose: tuple[np.ndarray, np.ndarray]) -> newton.ModelBuilder:
+        b = self._new_builder()
+        pos, rot = pose
+        b.add_mjcf(
+            rec.asset_file,
+            xform=wp.transform(wp.vec3(*pos), wp.quat(*rot)),
+            floating=not rec.fix_root,
+            enable_self_collisions=rec.enable_self_collisions,
+            convert_3d_hinge_to_ball_joints=True,
+            collapse_fixed_joints=False,
+            ignore_inertial_definitions=False,
+            ignore_names=["floor", "ground"],
+        )
+        if rec.is_visual:  # a ghost: drawn, never touching anything
+            collide = int(newton.ShapeFlags.COLLIDE_SHAPES) | int(newton.ShapeFlags.COLLIDE_PARTICLES)
+            b.shape_flags = [int(f) & ~collide for f in b.shape_flags]
+        return b
+
+    def _build_model(self, objs: list[_ObjRecord]):
+        scene = self._new_builder()
+        scene.add_ground_plane(cfg=newton.ModelBuilder.ShapeConfig(mu=1.0, restitution=0.0), label=GROUND_LABEL)
+        cache: dict[tuple, newton.ModelBuilder] = {}
+        for e in range(self._num_envs):
+            scene.begin_world()
+            for rec, pose in zip(objs, self._start_poses[e], strict=True):
+                if rec.fix_root:  # a fixed root's pose is part of the model
+                    scene.add_builder(self._object_builder(rec, pose))
+                    continue
+                if rec.signature() not in cache:
+                    cache[rec.signature()] = self._object_builder(rec, (np.zeros(3), np.array([0, 0, 0, 1.0])))
+                scene.add_builder(cache[rec.signature()])
+            scene.end_world()
+        return scene.finalize(device=self._wp_device, requires_grad=False)
+
+    def _build_layouts(self, objs: list[_ObjRecord]) -> list[_ObjLayout]:
+        m, n = self.model, self._num_envs
+        self._bodies_per_world = m.body_count // n
+        self._q_per_world = m.joint_coord_count // n
+        self._qd_per_world = m.joint_dof_count // n
+        art = m.articulation_start.numpy()
+        joint_q_start, joint_qd_start = m.joint_q_start.numpy(), m.joint_qd_start.numpy()
+        joint_child = m.joint_child.numpy()
+        layouts, body0 = [], 0
+        for o, rec in enumerate(objs):
+            kin = self._kin_model(rec.asset_file)
+            j0 = int(art[o])  # articulations of env 0 come first, one per object
+            nb = kin.get_num_joints()
+            names = [str(s).rsplit("/", 1)[-1] for s in m.body_label[body0 : body0 + nb]]
+            if names != kin.body_names:
+                raise MimicKitError(f"{rec.asset_file}: Newton body order {names} differs from {kin.body_names}")
+            hinge_cols, hinge_q, ball_cols, ball_q, dof_qd = [], [], [], [], []
+            has_dofs = kin.get_dof_size() > 0
+            actuated = self._config.control_mode != ControlMode.none and not rec.disable_motors and has_dofs
+            for joint in kin.joints[1:]:
+                if joint.dof_dim == 0:
+                    continue
+                nj = j0 + joint.body_id  # one Newton joint per body, in body order
+                assert joint_child[nj] == body0 + joint.body_id
+                q0, qd0 = int(joint_q_start[nj]), int(joint_qd_start[nj])
+                if joint.type == JointType.HINGE:
+                    hinge_cols.append(joint.dof_idx)
+                    hinge_q.append(q0)
+                    dof_qd.append(qd0)
+                else:
+                    ball_cols.append([joint.dof_idx + k for k in range(3)])
+                    ball_q.append([q0 + k for k in range(4)])
+                    dof_qd += [qd0 + k for k in range(3)]
+            lay = _ObjLayout(
+                kin=kin,
+                bodies=slice(body0, body0 + nb),
+                root_q=-1 if rec.fix_root else int(joint_q_start[j0]),
+                root_qd=-1 if rec.fix_root else int(joint_qd_start[j0]),
+                hinge_cols=torch.tensor(hinge_cols, dtype=torch.long),
+                hinge_q=torch.tensor(hinge_q, dtype=torch.long),
+                ball_cols=torch.tensor(ball_cols, dtype=torch.long).reshape(-1, 3),
+                ball_q=torch.tensor(ball_q, dtype=torch.long).reshape(-1, 4),
+                dof_qd=torch.tensor(dof_qd, dtype=torch.long),
+                actuated=actuated,
+            )
+            lay.kp, lay.kd = self._mode_gains(lay)
+            layouts.append(lay)
+            body0 += nb
+        return layouts
+
+    def _mode_gains(self, lay: _ObjLayout) -> tuple[np.ndarray, np.ndarray]:
+        """The (kp, kd) [D] the control mode uses, as in the MuJoCo engine."""
+        kp, kd = lay.kin.dof_array("kp"), lay.kin.dof_array("kd")
+        mode = self._config.control_mode
+        if not lay.actuated or mode in (ControlMode.torque, ControlMode.none):
+            return np.zeros_like(kp), np.zeros_like(kd)
+        if mode == ControlMode.vel:
+            return np.zeros_like(kp), kd
+        return kp, kd
+
+    def _target_mode(self, lay: _ObjLayout) -> int:
+        mode = self._config.control_mode
+        if not lay.actuated:
+            return int(newton.JointTargetMode.NONE)
+        return int({
+            ControlMode.pos: newton.JointTargetMode.POSITION,
+            ControlMode.vel: newton.JointTargetMode.VELOCITY,
+        }.get(mode, newton.JointTargetMode.EFFORT))  # fmt: skip
+
+    def _set_gains(self, objs: list[_ObjRecord]) -> None:
+        """Joint-target gains, modes and effort limits per DoF in every world; passive springs off."""
+        m = self.model
+        ke, kd = m.joint_target_ke.numpy(), m.joint_target_kd.numpy()
+        mode, limit = m.joint_target_mode.numpy(), m.joint_effort_limit.numpy()
+        ke[:], kd[:], mode[:] = 0.0, 0.0, int(newton.JointTargetMode.NONE)
+        for lay in self._layouts:
+            cols = (lay.dof_qd.numpy()[None] + self._qd_per_world * np.arange(self._num_envs)[:, None]).ravel()
+            ke[cols] = np.tile(lay.kp, self._num_envs)
+            kd[cols] = np.tile(lay.kd, self._num_envs)
+            mode[cols] = self._target_mode(lay)
+            limit[cols] = np.tile(lay.kin.dof_array("torque_limit"), self._num_envs)
+        m.joint_target_ke.assign(ke)
+        m.joint_target_kd.assign(kd)
+        m.joint_target_mode.assign(mode)
+        m.joint_effort_limit.assign(limit)
+        # The MJCF stiffness/damping are the PD gains (spec §2.4), not springs: zero the passive ones.
+        m.joint_stiffness.zero_()
+        m.joint_damping.zero_()
+
+    def _build_solver(self) -> None:
+        cfg, m = self._config, self.model
+        self.solver = newton.solvers.SolverMuJoCo(
+            m,
+            solver="newton",
+            integrator=cfg.integrator,
+            cone="pyramidal",
+            impratio=10.0,
+            iterations=cfg.solver_iterations,
+            ls_iterations=cfg.ls_iterations,
+            # Per-world contact and constraint capacity: the reference engine's sizes.
+            nconmax=150,
+            njmax=450,
+        )
+        self._sensor_rows = self._sensor_layout()
+        self.sensor = SensorContact(
+            m,
+            sensing_bodies=self._sensor_bodies,
+            counterpart_shapes=[list(m.shape_label).index(GROUND_LABEL)],
+            measure_total=True,
+            request_contact_attributes=False,
+        )
+        # MuJoCo finds the contacts itself; this buffer only receives them (and their forces) for the sensor.
+        capacity = self.solver.get_max_contact_count()
+        self.contacts = newton.CollisionPipeline(m, rigid_contact_max=capacity, soft_contact_max=0).contacts()
+        kinds = set(self.sensor.solver_observable_kinds) | {newton.solvers.SolverMuJoCo.ObservableKind.QFRC_ACTUATOR}
+        self.observables = self.solver.observables(kinds=kinds, contacts=self.contacts)
+        self.state = m.state()
+        self.control = m.control()
+        newton.eval_fk(m, m.joint_q, m.joint_qd, self.state)
+
+    def _sensor_layout(self) -> list[tuple[int, torch.Tensor]]:
+        """Contact-sensor bodies (all bodies of non-visual objects, every world, ascending) and, per object,
+        (obj_id, row index [N, B] into the sensor's outputs)."""
+        bodies, rows = [], []
+        for o, (rec, lay) in enumerate(zip(self._env_objs[0], self._layouts, strict=True)):
+            if rec.is_visual:
+                continue
+            per_world = np.arange(lay.bodies.start, lay.bodies.stop)
+            ids = per_world[None] + self._bodies_per_world * np.arange(self._num_envs)[:, None]  # [N, B]
+            rows.append((o, ids))
+            bodies.append(ids.ravel())
+        self._sensor_bodies = sorted(int(b) for b in np.concatenate(bodies)) if bodies else []
+        pos = {b: i for i, b in enumerate(self._sensor_bodies)}
+        return [(o, torch.from_numpy(np.vectorize(pos.get)(ids)).long()) for o, ids in rows]
+
+    def _bind_state(self) -> None:
+        """Zero-copy torch views [N, ...] of the warp state, control and model arrays."""
+        n = self._num_envs
+        s, c = self.state, self.control
+        self._jq = wp.to_torch(s.joint_q).view(n, -1)
+        self._jqd = wp.to_torch(s.joint_qd).view(n, -1)
+        self._bq = wp.to_torch(s.body_q).view(n, self._bodies_per_world, 7)
+        self._bqd = wp.to_torch(s.body_qd).view(n, self._bodies_per_world, 6)
+        self._bf = wp.to_torch(s.body_f).view(n, self._bodies_per_world, 6)
+        self._target_q = wp.to_torch(c.joint_target_q).view(n, -1)
+        self._target_qd = wp.to_torch(c.joint_target_qd).view(n, -1)
+        self._joint_f = wp.to_torch(c.joint_f).view(n, -1)
+        self._qfrc = wp.to_torch(self.observables.qfrc_actuator).view(n, -1)
+        self._force_buf = torch.zeros(n, self._bodies_per_world, 3)
+        self._has_forces = False
+
+    def _place_start_poses(self) -> None:
+        """Free roots start at their env's start pose (fixed roots got theirs in the model)."""
+        for e, poses in enumerate(self._start_poses):
+            for lay, (pos, rot) in zip(self._layouts, poses, strict=True):
+                if lay.root_q >= 0:
+                    self._jq[e, lay.root_q : lay.root_q + 3] = torch.from_numpy(pos)
+                    self._jq[e, lay.root_q + 3 : lay.root_q + 7] = torch.from_numpy(rot)
+        newton.eval_fk(self.model, self.state.joint_q, self.state.joint_qd, self.state)
+
+    # ------------------------------------------------------------------ stepping
+    def set_cmd(self, obj_id: int, cmd: torch.Tensor) -> None:
+        lay = self._layouts[obj_id]
+        if self._config.control_mode == ControlMode.none or not lay.actuated:
+            return
+        value = torch.as_tensor(cmd, dtype=torch.float32).to("cpu").expand(self._num_envs, lay.num_dofs)
+        self._cmd[obj_id][:] = value
+        mode = self._config.control_mode
+        if mode == ControlMode.pos:
+            self._target_q[:, lay.hinge_q] = value[:, lay.hinge_cols]
+            if len(lay.ball_cols):  # ball targets are quaternions; the solver turns them back into exp-maps
+                self._target_q[:, lay.ball_q] = tu.exp_map_to_quat(value[:, lay.ball_cols])
+        elif mode == ControlMode.vel:
+            self._target_qd[:, lay.dof_qd] = value
+        elif mode == ControlMode.torque:
+            limit = torch.as_tensor(lay.kin.dof_array("torque_limit"), dtype=torch.float32)
+            self._joint_f[:, lay.dof_qd] = torch.maximum(torch.minimum(value, limit), -limit)
+
+    def step(self) -> None:
+        self._sync()
+        dt = self.get_sim_timestep()
+        nsub = self._config.substeps
+        for i in range(nsub):
+            self.state.clear_forces()
+            if self._has_forces:
+                self._bf[..., :3] = self._force_buf
+            if self._config.control_mode == ControlMode.pd_explicit:
+                self._apply_explicit_pd()
+            # Contact forces are exported only on the last substep: that is all the sensor reads.
+            obs = self.observables if i == nsub - 1 else None
+            self.solver.step(self.state, self.state, self.control, self.contacts, dt, observables=obs)
+        self.sensor.update(self.state, self.contacts, observables=self.observables)
+        if self._has_forces:
+            self._force_buf.zero_()
+            self._has_forces = False
+        self._refresh(contacts=True)
+        self._sim_time += self.get_timestep()
+
+    def _apply_explicit_pd(self) -> None:
+        """τ = kp (q* − q) − kd q̇ per hinge DoF, clipped to ± the torque limit, into control.joint_f."""
+        for lay, cmd in zip(self._layouts, self._cmd, strict=True):
+            if not lay.actuated:
+                continue
+            kp, kd = torch.as_tensor(lay.kp, dtype=torch.float32), torch.as_tensor(lay.kd, dtype=torch.float32)
+            limit = torch.as_tensor(lay.kin.dof_array("torque_limit"), dtype=torch.float32)
+            tau = kp * (cmd - self._jq[:, lay.hinge_q]) - kd * self._jqd[:, lay.dof_qd]
+            self._joint_f[:, lay.dof_qd] = torch.maximum(torch.minimum(tau, limit), -limit)
+
+    # ------------------------------------------------------------------ state sync
+    def _sync(self) -> None:
+        """Forward kinematics after setter edits, so body poses and velocities match joint_q / joint_qd."""
+        if self._dirty:
+            newton.eval_fk(self.model, self.state.joint_q, self.state.joint_qd, self.state)
+            self._refresh()
+
+    def _refresh(self, contacts: bool = False) -> None:
+        """Recompute every object's getter tensors from the warp state (in place: the tensors stay live)."""
+        self._dirty = False
+        for lay, st in zip(self._layouts, self._states, strict=True):
+            t, b = st.t, lay.bodies
+            t["body_pos"].copy_(self._bq[:, b, :3])
+            t["body_rot"].copy_(self._bq[:, b, 3:])
+            t["body_vel"].copy_(self._bqd[:, b, :3])
+            t["body_ang_vel"].copy_(self._bqd[:, b, 3:])
+            if lay.num_dofs:
+                t["dof_pos"][:, lay.hinge_cols] = self._jq[:, lay.hinge_q]
+                if len(lay.ball_cols):
+                    t["dof_pos"][:, lay.ball_cols] = tu.quat_to_exp_map(self._jq[:, lay.ball_q])
+                t["dof_vel"].copy_(self._jqd[:, lay.dof_qd])
+        if contacts:
+            ground = wp.to_torch(self.sensor.force_matrix)[:, 0]  # [rows, 3]: the ground is counterpart 0
+            total = wp.to_torch(self.sensor.total_force)
+            for o, rows in self._sensor_rows:
+                self._states[o].t["ground_contact_forces"].copy_(ground[rows])
+                self._states[o].t["contact_forces"].copy_(total[rows])
+
+    # ------------------------------------------------------------------ getters
+    def _get(self, obj_id: int, key: str) -> torch.Tensor:
+        self._sync()
+        return self._states[obj_id].t[key]
+
+    def get_root_pos(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "root_pos")
+
+    def get_root_rot(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "root_rot")
+
+    def get_root_vel(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "root_vel")
+
+    def get_root_ang_vel(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "root_ang_vel")
+
+    def get_dof_pos(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "dof_pos")
+
+    def get_dof_vel(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "dof_vel")
+
+    def get_dof_forces(self, obj_id: int) -> torch.Tensor:
+        """[N, D] generalized actuator forces of the last substep (MuJoCo's qfrc_actuator), or the explicit
+        joint torques applied in torque / pd_explicit mode."""
+        lay, t = self._layouts[obj_id], self._get(obj_id, "dof_forces")
+        if self._config.control_mode in (ControlMode.torque, ControlMode.pd_explicit):
+            t.copy_(self._joint_f[:, lay.dof_qd])
+        else:
+            t.copy_(self._qfrc[:, lay.dof_qd])
+        return t
+
+    def get_body_pos(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "body_pos")
+
+    def get_body_rot(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "body_rot")
+
+    def get_body_vel(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "body_vel")
+
+    def get_body_ang_vel(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "body_ang_vel")
+
+    def get_contact_forces(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "contact_forces")
+
+    def get_ground_contact_forces(self, obj_id: int) -> torch.Tensor:
+        return self._get(obj_id, "ground_contact_forces")
+
+    # ------------------------------------------------------------------ setters
+    def _ids(self, env_ids: EnvIds) -> torch.Tensor:
+        if env_ids is None:
+            return torch.arange(self._num_envs)
+        return torch.as_tensor(env_ids, dtype=torch.long).to("cpu").reshape(-1)
+
+    @staticmethod
+    def _rows(value: torch.Tensor | float, n: int, width: int) -> torch.Tensor:
+        return torch.as_tensor(value, dtype=torch.float32).to("cpu").expand(n, width)
+
+    def _set_root(self, env_ids: EnvIds, obj_id: int, value: torch.Tensor | float, width: int, offset: int,
+                  in_qd: bool) -> None:  # fmt: skip
+        lay = self._layouts[obj_id]
+        if lay.root_q < 0:
+            return  # a fixed root is part of the model
+        ids = self._ids(env_ids)
+        rows = self._rows(value, len(ids), width)
+        if in_qd:  # free joint qd: COM linear velocity then angular velocity, both world frame
+            self._jqd[ids, lay.root_qd + offset : lay.root_qd + offset + width] = rows
+        else:
+            self._jq[ids, lay.root_q + offset : lay.root_q + offset + width] = rows
+        self._dirty = True
+
+    def set_root_pos(self, env_ids: EnvIds, obj_id: int, root_pos: torch.Tensor | float) -> None:
+        self._set_root(env_ids, obj_id, root_pos, 3, 0, in_qd=False)
+
+    def set_root_rot(self, env_ids: EnvIds, obj_id: int, root_rot: torch.Tensor | float) -> None:
+        rot = tu.quat_normalize(torch.as_tensor(root_rot, dtype=torch.float32))
+        self._set_root(env_ids, obj_id, rot, 4, 3, in_qd=False)
+
+    def set_root_vel(self, env_ids: EnvIds, obj_id: int, root_vel: torch.Tensor | float) -> None:
+        self._set_root(env_ids, obj_id, root_vel, 3, 0, in_qd=True)
+
+    def set_root_ang_vel(self, env_ids: EnvIds, obj_id: int, root_ang_vel: torch.Tensor | float) -> None:
+        self._set_root(env_ids, obj_id, root_ang_vel, 3, 3, in_qd=True)
+
+    def set_dof_pos(self, env_ids: EnvIds, obj_id: int, dof_pos: torch.Tensor | float) -> None:
+        ids, lay = self._ids(env_ids), self._layouts[obj_id]
+        dof = self._rows(dof_pos, len(ids), lay.num_dofs)
+        if len(lay.hinge_cols):
+            self._jq[ids[:, None], lay.hinge_q[None]] = dof[:, lay.hinge_cols]
+        if len(lay.ball_cols):
+            self._jq[ids[:, None, None], lay.ball_q[None]] = tu.exp_map_to_quat(dof[:, lay.ball_cols])
+        self._dirty = True
+
+    def set_dof_vel(self, env_ids: EnvIds, obj_id: int, dof_vel: torch.Tensor | float) -> None:
+        ids, lay = self._ids(env_ids), self._layouts[obj_id]
+        self._jqd[ids[:, None], lay.dof_qd[None]] = self._rows(dof_vel, len(ids), lay.num_dofs)
+        self._dirty = True
+
+    def _set_body_buffer(self, env_ids: EnvIds, obj_id: int, key: str, value: torch.Tensor | float) -> None:
+        buf = self._get(obj_id, key)  # physics-derived rows first, so this overwrite is what getters return
+        ids = self._ids(env_ids).to(buf.device)
+        buf[ids] = torch.as_tensor(value, dtype=buf.dtype, device=buf.device).expand(len(ids), *buf.shape[1:])
+
+    def set_body_pos(self, env_ids: EnvIds, obj_id: int, body_pos: torch.Tensor | float) -> None:
+        self._set_body_buffer(env_ids, obj_id, "body_pos", body_pos)
+
+    def set_body_rot(self, env_ids: EnvIds, obj_id: int, body_rot: torch.Tensor | float) -> None:
+        self._set_body_buffer(env_ids, obj_id, "body_rot", body_rot)
+
+    def set_body_vel(self, env_ids: EnvIds, obj_id: int, body_vel: torch.Tensor | float) -> None:
+        self._set_body_buffer(env_ids, obj_id, "body_vel", body_vel)
+
+    def set_body_ang_vel(self, env_ids: EnvIds, obj_id: int, body_ang_vel: torch.Tensor | float) -> None:
+        self._set_body_buffer(env_ids, obj_id, "body_ang_vel", body_ang_vel)
+
+    def set_body_forces(self, env_ids: EnvIds, obj_id: int, body_id: int, forces: torch.Tensor | float) -> None:
+        ids, lay = self._ids(env_ids), self._layouts[obj_id]
+        self._force_buf[ids, lay.bodies.start + body_id] = self._rows(forces, len(ids), 3)
+        self._has_forces = True
+
+    # ------------------------------------------------------------------ queries
+    def get_sim_time(self) -> float:
+        return self._sim_time
+
+    def get_gravity(self) -> np.ndarray:
+        return np.asarray(self.model.gravity.numpy(), dtype=np.float64).reshape(-1, 3)[0].copy()
+
+    def get_objs_per_env(self) -> int:
+        return len(self._env_objs[0]) if self._env_objs else 0
+
+    def get_obj_type(self, obj_id: int) -> ObjType:
+        return self._env_objs[0][obj_id].obj_type
+
+    def get_obj_num_dofs(self, obj_id: int) -> int:
+        return self._layouts[obj_id].num_dofs
+
+    def get_obj_num_bodies(self, obj_id: int) -> int:
+        return self._layouts[obj_id].num_bodies
+
+    def get_obj_body_names(self, obj_id: int) -> list[str]:
+        return self._layouts[obj_id].kin.get_body_names()
+
+    def find_obj_body_id(self, obj_id: int, name: str) -> int:
+        return self._layouts[obj_id].kin.get_body_id(name)
+
+    def get_obj_torque_limits(self, env_id: int, obj_id: int) -> np.ndarray:
+        return self._layouts[obj_id].kin.dof_array("torque_limit")
+
+    def get_obj_dof_limits(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
+        low, high = self._layouts[obj_id].kin.dof_limits()
+        return low.copy(), high.copy()
+
+    def get_obj_pd_gains(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
+        lay = self._layouts[obj_id]
+        return lay.kp.copy(), lay.kd.copy()
+
+    def calc_obj_mass(self, env_id: int, obj_id: int) -> float:
+        lay = self._layouts[obj_id]
+        start = env_id * self._bodies_per_world
+        return float(self.model.body_mass.numpy()[start + lay.bodies.start : start + lay.bodies.stop].sum())

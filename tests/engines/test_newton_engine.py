@@ -1,0 +1,190 @@
+"""The Newton engine (optional extra, its own venv: `make test-newton`): state conventions against the
+kinematic model, PD, contacts, resets, the DeepMimic env and a PPO run through `mimickit train/test`.
+
+Warp's CPU kernels are single-threaded and the first run JIT-compiles them (cached in ~/.cache/warp),
+so the tests use one to four envs and short horizons."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+pytest.importorskip("newton", reason="the Newton engine needs the optional extra: pip install .[newton]")
+
+from mimickit.anim.mjcf_char_model import load_char_model  # noqa: E402
+from mimickit.engines.engine import EngineConfig, ObjType  # noqa: E402
+from mimickit.engines.engine_builder import build_engine  # noqa: E402
+from mimickit.engines.newton_engine import NewtonEngine  # noqa: E402
+from mimickit.envs.char_env import CharEnv  # noqa: E402
+from mimickit.envs.env_builder import build_env  # noqa: E402
+from mimickit.envs.env_config import CharEnvConfig, load_env_configs  # noqa: E402
+from mimickit.util import torch_util as tu  # noqa: E402
+from mimickit.util.config import load_config  # noqa: E402
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT  # noqa: E402
+
+HUMANOID = PROJECT_DATA_DIR / "assets/humanoid/humanoid.xml"
+NEWTON_YAML = PROJECT_DATA_DIR / "engines/newton_engine.yaml"
+DEEPMIMIC = PROJECT_DATA_DIR / "envs/deepmimic_humanoid_env.yaml"
+VIEW = PROJECT_DATA_DIR / "envs/view_motion_humanoid_env.yaml"
+AGENT = PROJECT_DATA_DIR / "agents/deepmimic_humanoid_ppo_agent.yaml"
+DEMO_ARGS = PROJECT_ROOT / "args/deepmimic_humanoid_demo_ppo_args.txt"
+INIT_ROOT_POS = (0.0, 0.0, 0.882416)
+
+
+def make_engine(num_envs: int = 1, mode: str = "pos", **obj_kwargs) -> NewtonEngine:
+    cfg = EngineConfig(engine_name="newton", control_mode=mode, control_freq=30, sim_freq=240, env_spacing=5)
+    engine = build_engine(cfg, num_envs, "cpu")
+    assert isinstance(engine, NewtonEngine)
+    for _ in range(num_envs):
+        env_id = engine.create_env()
+        engine.create_obj(env_id, ObjType.articulated, str(HUMANOID), "humanoid", start_pos=INIT_ROOT_POS, **obj_kwargs)
+    engine.initialize_sim()
+    return engine
+
+
+def init_dof(n: int = 1) -> torch.Tensor:
+    """[n, 28] the standing init pose: arms down, everything else zero."""
+    dof = torch.zeros(n, 28)
+    dof[:, 6], dof[:, 10] = 1.5708, -1.5708
+    return dof
+
+
+def random_state(n: int, gen: torch.Generator) -> dict[str, torch.Tensor]:
+    """A random state; exp-maps stay below π in norm so that they round-trip through quaternions."""
+    dof = (torch.rand(n, 28, generator=gen) - 0.5) * 1.6
+    rot = tu.quat_normalize(torch.randn(n, 4, generator=gen))
+    return {
+        "root_pos": torch.randn(n, 3, generator=gen) + torch.tensor([0.0, 0.0, 1.0]),
+        "root_rot": torch.where(rot[:, 3:] < 0, -rot, rot),
+        "root_vel": torch.randn(n, 3, generator=gen),
+        "root_ang_vel": torch.randn(n, 3, generator=gen),
+        "dof_pos": dof,
+        "dof_vel": torch.randn(n, 28, generator=gen),
+    }
+
+
+def test_model_state_round_trip_and_kinematic_fk():
+    engine = make_engine(num_envs=3)
+    kin = load_char_model(HUMANOID)
+    assert engine.get_obj_body_names(0) == kin.body_names and engine.get_obj_num_dofs(0) == 28
+    kp, kd = engine.get_obj_pd_gains(0, 0)
+    torch.testing.assert_close(torch.from_numpy(kp), torch.from_numpy(kin.dof_array("kp")))
+    # The passive springs are gone: the MJCF stiffness/damping now drive the joint targets.
+    assert float(engine.model.joint_stiffness.numpy().max()) == 0.0
+    assert engine.calc_obj_mass(0, 0) == pytest.approx(kin.get_total_mass(), rel=1e-4)
+    torch.testing.assert_close(engine.get_root_pos(0), torch.tensor([INIT_ROOT_POS] * 3))
+
+    state = random_state(3, torch.Generator().manual_seed(0))
+    for name, value in state.items():
+        getattr(engine, f"set_{name}")(None, 0, value)
+    for name, value in state.items():
+        torch.testing.assert_close(getattr(engine, f"get_{name}")(0), value, atol=1e-5, rtol=1e-5, msg=name)
+    pos, rot = kin.forward_kinematics(state["root_pos"], state["root_rot"], kin.dof_to_rot(state["dof_pos"]))
+    torch.testing.assert_close(engine.get_body_pos(0), pos, atol=1e-4, rtol=0)
+    assert tu.quat_diff_angle(engine.get_body_rot(0), rot).max() < 1e-3
+
+    # Resetting one env leaves the others as they were.
+    before = engine.get_dof_pos(0).clone()
+    engine.set_dof_pos(torch.tensor([1]), 0, 0.0)
+    after = engine.get_dof_pos(0)
+    assert after[1].abs().max() == 0.0 and torch.equal(after[[0, 2]], before[[0, 2]])
+
+
+def test_pd_holds_the_init_pose_for_5_seconds_on_the_feet():
+    engine = make_engine()
+    engine.set_dof_pos(None, 0, init_dof())
+    engine.set_cmd(0, init_dof())
+    heights = []
+    for step in range(150):  # 5 s at 30 Hz, 8 substeps each
+        engine.step()
+        heights.append(engine.get_root_pos(0)[0, 2].item())
+        if step == 45:  # settled: the ground carries the body weight, on the feet
+            ground = engine.get_ground_contact_forces(0)[0]
+            weight = engine.calc_obj_mass(0, 0) * 9.81
+            feet = [engine.find_obj_body_id(0, "right_foot"), engine.find_obj_body_id(0, "left_foot")]
+            assert ground.sum(0)[2].item() == pytest.approx(weight, rel=0.05)
+            assert ground[feet, 2].sum().item() == pytest.approx(ground[:, 2].sum().item(), rel=1e-3)
+            torch.testing.assert_close(engine.get_contact_forces(0)[0], ground)  # no other contacts
+    assert max(abs(h - INIT_ROOT_POS[2]) for h in heights) < 0.05, (min(heights), max(heights))
+    up = tu.quat_rotate(engine.get_root_rot(0), torch.tensor([[0.0, 0.0, 1.0]]))
+    assert up[0, 2].item() > 0.99
+    assert engine.get_sim_time() == pytest.approx(5.0)
+
+
+def test_disable_motors_leaves_a_limp_object_and_torque_mode_is_clipped():
+    limp = make_engine(disable_motors=True)
+    assert limp.get_obj_pd_gains(0, 0)[0].max() == 0.0
+    assert int(limp.model.joint_target_mode.numpy().max()) == 0  # JointTargetMode.NONE: no actuators
+    engine = make_engine(mode="torque")
+    engine.set_cmd(0, torch.full((1, 28), 1e4))
+    engine.step()
+    limit = torch.from_numpy(engine.get_obj_torque_limits(0, 0)).float()
+    torch.testing.assert_close(engine.get_dof_forces(0)[0], limit)
+
+
+def test_view_motion_matches_kinematic_fk_within_1mm():
+    env = build_env(VIEW, NEWTON_YAML, 2)
+    assert env.engine.get_name() == "newton"
+    env.reset()
+    lib, char = env.motion_lib, env.char_model
+    worst = 0.0
+    for _ in range(20):
+        env.step(torch.zeros(2, 28))
+        f = lib.calc_motion_frame(torch.zeros(2, dtype=torch.long), env.get_env_time())
+        body_pos, _ = char.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
+        worst = max(worst, (env.engine.get_body_pos(env.get_char_id()) - body_pos).norm(dim=-1).max().item())
+    assert worst < 1e-3
+
+
+def test_deepmimic_reference_state_scores_one_and_char_env_holds_its_pose():
+    env = build_env(DEEPMIMIC, NEWTON_YAML, 2)
+    _, info = env.reset()
+    terms = info["reward_terms"]
+    total = sum(env.reward_weights[k] * terms[k] for k in terms)
+    torch.testing.assert_close(total, torch.ones(2), atol=1e-3, rtol=0)
+    assert info["tracking"]["body_pos_err"].max() < 1e-4
+
+    env_cfg, engine_cfg = load_env_configs(DEEPMIMIC, NEWTON_YAML)
+    fields = {k: getattr(env_cfg, k) for k in CharEnvConfig.model_fields}
+    char = CharEnv(CharEnvConfig(**dict(fields, env_name="char", episode_length=100.0)), engine_cfg, 1)
+    char.reset()
+    for _ in range(30):
+        char.step(char._init_dof_pos.expand(1, -1))
+    assert abs(char.engine.get_root_pos(0)[0, 2].item() - INIT_ROOT_POS[2]) < 0.05
+
+
+def test_engine_yaml():
+    cfg = load_config(EngineConfig, NEWTON_YAML)
+    assert (cfg.engine_name, cfg.control_freq, cfg.sim_freq, cfg.substeps) == ("newton", 30, 240, 8)
+
+
+def mimickit(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "mimickit.cli", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=PROJECT_ROOT)
+
+
+def test_ppo_trains_on_newton_and_its_checkpoint_reloads_in_test(tmp_path: Path):
+    # The demo env with 1 s episodes: a control step costs ~0.1-0.4 s on warp's single-threaded CPU
+    # kernels, so the test episodes (run at iteration 0 and by `mimickit test`) must end soon.
+    env_yaml = tmp_path / "env.yaml"
+    env_yaml.write_text(DEEPMIMIC.read_text().replace("episode_length: 10.0", "episode_length: 1.0"))
+    agent_yaml = tmp_path / "agent.yaml"  # training tests the policy on the agent yaml's episode count
+    agent_yaml.write_text(AGENT.read_text().replace("test_episodes: 32", "test_episodes: 1"))
+    out = tmp_path / "run"
+    common = ["--arg_file", str(DEMO_ARGS), "--engine_config", str(NEWTON_YAML), "--env_config", str(env_yaml),
+              "--agent_config", str(agent_yaml), "--num_envs", "1", "--test_episodes", "1"]  # fmt: skip
+    r = mimickit("train", *common, "--out_dir", str(out), "--max_samples", "64")
+    assert r.returncode == 0, r.stderr[-3000:]
+    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [m["samples"] for m in rows] == [32, 64]
+    assert "newton" in (out / "engine_config.yaml").read_text()
+    r = mimickit("test", *common, "--model_file", str(out / "model.pt"), "--json")
+    assert r.returncode == 0, r.stderr[-3000:]
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    assert result["episodes"] >= 1 and 0 < result["mean_episode_length"] <= 30
+    assert 0.0 < result["tracking"]["pos_err_m"] < 1.0
