@@ -95,6 +95,16 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sim2sim(args: argparse.Namespace) -> int:
+    from mimickit.tools.sim2sim import format_report, run_sim2sim
+    from mimickit.util.paths import set_data_dir
+
+    set_data_dir(args.data_dir)
+    report = run_sim2sim(args.arg_file, args.model_file, args.motion_file, tuple(args.engines), args.seconds)
+    print(json.dumps(report) if args.json else format_report(report))
+    return 0
+
+
 def _checkpoint_export(args: argparse.Namespace) -> int:
     from mimickit.tools.export_checkpoint import export_checkpoint
 
@@ -193,6 +203,17 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
     bench.add_argument("--json", action="store_true", help="print JSON (one object, or a list for several counts)")
     bench.set_defaults(func=_bench)
+
+    s2s = sub.add_parser("sim2sim", help="one policy or clip from one initial state in two engines: divergence")
+    s2s.add_argument("--arg_file", required=True, help="arg file naming the env (with a clip), agent and engine")
+    src = s2s.add_mutually_exclusive_group(required=True)
+    src.add_argument("--model_file", help="checkpoint (.pt): run its deterministic policy")
+    src.add_argument("--motion_file", help="clip (.pkl): PD-track it (targets = the clip's DoF positions)")
+    s2s.add_argument("--engines", nargs=2, default=["mujoco", "newton"], choices=["mujoco", "newton"])
+    s2s.add_argument("--seconds", type=float, default=5.0, help="longest horizon (each run stops when it terminates)")
+    s2s.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
+    s2s.add_argument("--json", action="store_true", help="print the report (per-step series and summary) as JSON")
+    s2s.set_defaults(func=_sim2sim)
 
     plot = sub.add_parser("plot", help="learning curves of runs (log.txt, metrics.jsonl or run folders) to a PNG")
     plot.add_argument("logs", nargs="+", metavar="LOG", help="log.txt / metrics.jsonl files or run folders")

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import torch
 
-from mimickit.envs.env_config import load_env_configs
+from mimickit.engines.engine import EngineConfig
+from mimickit.envs.env_config import CharEnvConfig, load_env_configs
 from mimickit.envs.sim_env import SimEnv
 
 
@@ -18,6 +19,17 @@ def build_env(
     visualize: bool = False,
 ) -> SimEnv:
     env_cfg, engine_cfg = load_env_configs(env_file, engine_file)
+    return build_env_from_configs(env_cfg, engine_cfg, num_envs, device, visualize)
+
+
+def build_env_from_configs(
+    env_cfg: CharEnvConfig,
+    engine_cfg: EngineConfig,
+    num_envs: int,
+    device: torch.device | str = "cpu",
+    visualize: bool = False,
+) -> SimEnv:
+    """The env class named by `env_cfg.env_name` on validated configs (callers that edit them, e.g. sim2sim)."""
     if env_cfg.env_name == "char":
         from mimickit.envs.char_env import CharEnv as cls
     elif env_cfg.env_name == "deepmimic":
