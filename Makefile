@@ -5,7 +5,11 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export MIMICKIT_TEST_DATA ?= $(abspath ../shared/data)
 
-.PHONY: setup studio test browser lint format
+NEWTON_VENV := .venv-newton
+NEWTON_BIN := $(NEWTON_VENV)/bin
+NEWTON_STAMP := $(NEWTON_VENV)/.installed
+
+.PHONY: setup studio test browser lint format setup-newton test-newton
 
 setup: $(STAMP)
 
@@ -33,3 +37,18 @@ lint: setup
 
 format: setup
 	$(BIN)/ruff format mimickit studio tests benchmarks
+
+# The Newton engine in its own venv: newton[sim] pins mujoco 3.17, the main venv keeps mujoco 4.
+# Same order as setup: the CPU torch wheel first. Runs the Newton engine and sim2sim tests on warp's
+# CPU device (the first run JIT-compiles the kernels into ~/.cache/warp).
+setup-newton: $(NEWTON_STAMP)
+
+$(NEWTON_STAMP): pyproject.toml
+	$(PY) -m venv $(NEWTON_VENV)
+	$(NEWTON_BIN)/pip install -q --upgrade pip
+	$(NEWTON_BIN)/pip install -q torch==2.13.0
+	$(NEWTON_BIN)/pip install -q -e ".[dev,newton]"
+	touch $(NEWTON_STAMP)
+
+test-newton: setup-newton
+	$(NEWTON_BIN)/python -m pytest -q tests/engines/test_newton_engine.py
