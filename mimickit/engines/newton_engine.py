@@ -45,8 +45,11 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import resolve_data_path
 
 try:  # an optional extra: the builder reports a missing install with the command that fixes it
-    import newton
     import warp as wp
+
+    # Before newton initialises warp: no banner or per-module load lines on stdout (`sim2sim --json`).
+    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
+    import newton
     from newton.sensors import SensorContact
 except ImportError as exc:  # pragma: no cover - exercised only without the extra
     raise ImportError(
@@ -55,7 +58,6 @@ except ImportError as exc:  # pragma: no cover - exercised only without the extr
     ) from exc
 
 wp.config.enable_backward = False  # no gradients: smaller, faster kernels
-wp.config.quiet = True
 
 GROUND_LABEL = "ground_plane"
 

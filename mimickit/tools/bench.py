@@ -42,7 +42,8 @@ def run_bench(
     with torch.inference_mode():  # as in a training rollout: no autograd bookkeeping
         for _ in range(warmup):
             one_step()
-        raw = _raw_rollout(engine, substeps)
+        # Raw MuJoCo rollout needs the MuJoCo engine's own model and data; other engines report env figures only.
+        raw = _raw_rollout(engine, substeps) if hasattr(engine, "mj_datas") else None
         env.profiler.reset()
         for n in per_round:
             env.profiler.enabled = True
@@ -51,19 +52,23 @@ def run_bench(
                 one_step()
             t_env = time.perf_counter() - start
             env.profiler.enabled = False
-            t_raw = sum(raw.step(np.zeros((num_envs, engine.mj_model.nu))) for _ in range(n))
-            env_time, raw_time = env_time + t_env, raw_time + t_raw
-            ratios.append(t_raw / t_env)
-        raw.close()
+            env_time += t_env
+            if raw is not None:
+                t_raw = sum(raw.step(np.zeros((num_envs, engine.mj_model.nu))) for _ in range(n))
+                raw_time += t_raw
+                ratios.append(t_raw / t_env)
+        if raw is not None:
+            raw.close()
     env_sps = steps * num_envs / env_time
-    raw_sps = steps * num_envs * substeps / raw_time
+    raw_sps = steps * num_envs * substeps / raw_time if raw is not None else None
     return {
         "num_envs": num_envs,
         "steps": steps,
         "substeps": substeps,
         "env_steps_per_s": round(env_sps, 1),
-        "raw_sim_steps_per_s": round(raw_sps, 1),
-        "ratio": round(env_sps * substeps / raw_sps, 4),
+        "engine": engine.get_name(),
+        "raw_sim_steps_per_s": round(raw_sps, 1) if raw_sps else None,
+        "ratio": round(env_sps * substeps / raw_sps, 4) if raw_sps else None,
         "ratio_per_round": [round(r, 4) for r in ratios],
         "profile": {k: round(v, 4) for k, v in env.profiler.shares().items()},
     }
@@ -79,11 +84,16 @@ def _raw_rollout(engine: Any, substeps: int) -> Any:
 
 def format_bench(result: dict[str, Any]) -> str:
     lines = [
-        f"{result['num_envs']} envs × {result['steps']} steps, {result['substeps']} substeps",
+        f"{result['engine']}: {result['num_envs']} envs × {result['steps']} steps, {result['substeps']} substeps",
         f"  env steps/s         {result['env_steps_per_s']:>12,.0f}",
-        f"  raw sim steps/s     {result['raw_sim_steps_per_s']:>12,.0f}",
-        f"  ratio               {result['ratio']:>12.3f}   per round: "
-        + " ".join(f"{r:.2f}" for r in result["ratio_per_round"]),
+    ]
+    if result["raw_sim_steps_per_s"] is not None:
+        lines += [
+            f"  raw sim steps/s     {result['raw_sim_steps_per_s']:>12,.0f}",
+            f"  ratio               {result['ratio']:>12.3f}   per round: "
+            + " ".join(f"{r:.2f}" for r in result["ratio_per_round"]),
+        ]
+    lines += [
         "  time share of env steps: " + ", ".join(f"{k} {v:.0%}" for k, v in result["profile"].items()),
     ]
     return "\n".join(lines)
