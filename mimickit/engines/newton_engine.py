@@ -407,7 +407,7 @@ class NewtonEngine(Engine):
         self._target_qd = wp.to_torch(c.joint_target_qd).view(n, -1)
         self._joint_f = wp.to_torch(c.joint_f).view(n, -1)
         self._qfrc = wp.to_torch(self.observables.qfrc_actuator).view(n, -1)
-        self._force_buf = torch.zeros(n, self._bodies_per_world, 3)
+        self._force_buf = torch.zeros(n, self._bodies_per_world, 3, device=self._device)
         self._has_forces = False
 
     def _place_start_poses(self) -> None:
@@ -424,7 +424,7 @@ class NewtonEngine(Engine):
         lay = self._layouts[obj_id]
         if self._config.control_mode == ControlMode.none or not lay.actuated:
             return
-        value = torch.as_tensor(cmd, dtype=torch.float32).to("cpu").expand(self._num_envs, lay.num_dofs)
+        value = torch.as_tensor(cmd, dtype=torch.float32).to(self._device).expand(self._num_envs, lay.num_dofs)
         self._cmd[obj_id][:] = value
         mode = self._config.control_mode
         if mode == ControlMode.pos:
@@ -434,7 +434,7 @@ class NewtonEngine(Engine):
         elif mode == ControlMode.vel:
             self._target_qd[:, lay.dof_qd] = value
         elif mode == ControlMode.torque:
-            limit = torch.as_tensor(lay.kin.dof_array("torque_limit"), dtype=torch.float32)
+            limit = torch.as_tensor(lay.kin.dof_array("torque_limit"), dtype=torch.float32, device=self._device)
             self._joint_f[:, lay.dof_qd] = torch.maximum(torch.minimum(value, limit), -limit)
 
     def step(self) -> None:
@@ -462,8 +462,8 @@ class NewtonEngine(Engine):
         for lay, cmd in zip(self._layouts, self._cmd, strict=True):
             if not lay.actuated:
                 continue
-            kp, kd = torch.as_tensor(lay.kp, dtype=torch.float32), torch.as_tensor(lay.kd, dtype=torch.float32)
-            limit = torch.as_tensor(lay.kin.dof_array("torque_limit"), dtype=torch.float32)
+            kp, kd, limit = (torch.as_tensor(a, dtype=torch.float32, device=self._device) for a in
+                             (lay.kp, lay.kd, lay.kin.dof_array("torque_limit")))  # fmt: skip
             tau = kp * (cmd - self._jq[:, lay.hinge_q]) - kd * self._jqd[:, lay.dof_qd]
             self._joint_f[:, lay.dof_qd] = torch.maximum(torch.minimum(tau, limit), -limit)
 
@@ -550,11 +550,10 @@ class NewtonEngine(Engine):
     def _ids(self, env_ids: EnvIds) -> torch.Tensor:
         if env_ids is None:
             return torch.arange(self._num_envs)
-        return torch.as_tensor(env_ids, dtype=torch.long).to("cpu").reshape(-1)
+        return torch.as_tensor(env_ids, dtype=torch.long).to(self._device).reshape(-1)
 
-    @staticmethod
-    def _rows(value: torch.Tensor | float, n: int, width: int) -> torch.Tensor:
-        return torch.as_tensor(value, dtype=torch.float32).to("cpu").expand(n, width)
+    def _rows(self, value: torch.Tensor | float, n: int, width: int) -> torch.Tensor:
+        return torch.as_tensor(value, dtype=torch.float32).to(self._device).expand(n, width)
 
     def _set_root(self, env_ids: EnvIds, obj_id: int, value: torch.Tensor | float, width: int, offset: int,
                   in_qd: bool) -> None:  # fmt: skip

@@ -23,9 +23,13 @@ from mimickit.engines.newton_engine import NewtonEngine  # noqa: E402
 from mimickit.envs.char_env import CharEnv  # noqa: E402
 from mimickit.envs.env_builder import build_env  # noqa: E402
 from mimickit.envs.env_config import CharEnvConfig, load_env_configs  # noqa: E402
+from mimickit.learning.agent_builder import build_agent  # noqa: E402
 from mimickit.util import torch_util as tu  # noqa: E402
+from mimickit.util.arg_parser import ArgParser  # noqa: E402
 from mimickit.util.config import load_config  # noqa: E402
-from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT  # noqa: E402
+from mimickit.util.errors import MimicKitError  # noqa: E402
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, resolve_data_path, set_data_dir  # noqa: E402
+from tests import conftest  # noqa: E402
 
 HUMANOID = PROJECT_DATA_DIR / "assets/humanoid/humanoid.xml"
 NEWTON_YAML = PROJECT_DATA_DIR / "engines/newton_engine.yaml"
@@ -37,13 +41,14 @@ DEMO_ARGS = PROJECT_ROOT / "args/deepmimic_humanoid_demo_ppo_args.txt"
 INIT_ROOT_POS = (0.0, 0.0, 0.882416)
 
 
-def make_engine(num_envs: int = 1, mode: str = "pos", **obj_kwargs) -> NewtonEngine:
+def make_engine(num_envs: int = 1, mode: str = "pos", asset: Path = HUMANOID, **obj_kwargs) -> NewtonEngine:
     cfg = EngineConfig(engine_name="newton", control_mode=mode, control_freq=30, sim_freq=240, env_spacing=5)
     engine = build_engine(cfg, num_envs, "cpu")
     assert isinstance(engine, NewtonEngine)
+    obj_kwargs.setdefault("start_pos", INIT_ROOT_POS)
     for _ in range(num_envs):
         env_id = engine.create_env()
-        engine.create_obj(env_id, ObjType.articulated, str(HUMANOID), "humanoid", start_pos=INIT_ROOT_POS, **obj_kwargs)
+        engine.create_obj(env_id, ObjType.articulated, str(asset), "obj", **obj_kwargs)
     engine.initialize_sim()
     return engine
 
@@ -128,6 +133,26 @@ def test_disable_motors_leaves_a_limp_object_and_torque_mode_is_clipped():
     torch.testing.assert_close(engine.get_dof_forces(0)[0], limit)
 
 
+def test_pd_explicit_drives_a_hinge_on_a_fixed_base_and_rejects_ball_joints(tmp_path: Path):
+    xml = tmp_path / "arm.xml"
+    xml.write_text(
+        """<mujoco><worldbody><body name="base"><geom type="box" size=".05 .05 .05" mass="1"/>
+        <body name="link"><joint name="elbow" type="hinge" axis="0 1 0" stiffness="50" damping="5"
+         actuatorfrcrange="-20 20"/><geom type="capsule" fromto="0 0 0 .3 0 0" size=".03" mass="0.5"/>
+        </body></body></worldbody></mujoco>"""
+    )
+    engine = make_engine(num_envs=2, mode="pd_1d", asset=xml, fix_root=True, start_pos=(0.0, 0.0, 1.0))
+    engine.set_cmd(0, torch.tensor([[0.5]]))
+    for _ in range(30):
+        engine.step()
+    # Gravity on the 0.5 kg link (0.74 N·m about the hinge) against kp 50: about 0.015 rad short.
+    q = engine.get_dof_pos(0)[:, 0]
+    assert ((q - 0.5).abs() < 0.03).all(), q
+    torch.testing.assert_close(engine.get_root_pos(0), torch.tensor([[0.0, 0.0, 1.0]] * 2))  # the base stays
+    with pytest.raises(MimicKitError, match="pd_explicit"):
+        make_engine(mode="pd_explicit")
+
+
 def test_view_motion_matches_kinematic_fk_within_1mm():
     env = build_env(VIEW, NEWTON_YAML, 2)
     assert env.engine.get_name() == "newton"
@@ -157,6 +182,33 @@ def test_deepmimic_reference_state_scores_one_and_char_env_holds_its_pose():
     for _ in range(30):
         char.step(char._init_dof_pos.expand(1, -1))
     assert abs(char.engine.get_root_pos(0)[0, 2].item() - INIT_ROOT_POS[2]) < 0.05
+
+
+HUMANOID_ARG_FILES = sorted(p.name for p in (PROJECT_ROOT / "args").glob("*humanoid*_args.txt"))
+
+
+@pytest.mark.parametrize("arg_file", HUMANOID_ARG_FILES)
+def test_every_humanoid_arg_file_runs_on_newton(arg_file: str):
+    """The arg file's env and agent with only --engine_config switched: build, reset, 3 policy steps."""
+    args = ArgParser()
+    args.load_file(str(PROJECT_ROOT / "args" / arg_file))
+    set_data_dir(str(conftest.test_data_dir() or "") or None)  # MimicKit clips (walk) come from the test data
+    try:
+        env_file = resolve_data_path(args.parse_string("env_config", ""))
+        agent_file = args.parse_string("agent_config", "")
+        try:
+            env = build_env(env_file, NEWTON_YAML, 2)
+        except MimicKitError as e:
+            if conftest.test_data_dir() is None and "not found" in str(e):
+                pytest.skip(f"{arg_file} needs MimicKit data (MIMICKIT_TEST_DATA): {e}")
+            raise
+        agent = build_agent(resolve_data_path(agent_file) if agent_file else None, env, verbose=False)
+        obs, _ = env.reset()
+        for _ in range(3):
+            obs, _, _, _ = env.step(agent.compute_action(obs))
+        assert env.engine.get_name() == "newton" and torch.isfinite(obs).all()
+    finally:
+        set_data_dir(None)
 
 
 def test_engine_yaml():
