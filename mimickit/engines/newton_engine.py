@@ -186,6 +186,7 @@ class NewtonEngine(Engine):
         self.model = self._build_model(objs)
         self._layouts = self._build_layouts(objs)
         self._set_gains(objs)  # before the solver: SolverMuJoCo builds its actuators from these
+        self._float_ghosts(objs)
         self._build_solver()
         self._bind_state()
         self._place_start_poses()
@@ -348,6 +349,17 @@ class NewtonEngine(Engine):
         m.joint_stiffness.zero_()
         m.joint_damping.zero_()
 
+    def _float_ghosts(self, objs: list[_ObjRecord]) -> None:
+        """Visual objects get MuJoCo gravity compensation (as in the MuJoCo engine): a ghost stays where the
+        env poses it instead of dropping during each control step."""
+        gravcomp = self.model.mujoco.gravcomp.numpy()
+        for rec, lay in zip(objs, self._layouts, strict=True):
+            if rec.is_visual:
+                for e in range(self._num_envs):
+                    start = e * self._bodies_per_world
+                    gravcomp[start + lay.bodies.start : start + lay.bodies.stop] = 1.0
+        self.model.mujoco.gravcomp.assign(gravcomp)
+
     def _build_solver(self) -> None:
         cfg, m = self._config, self.model
         self.solver = newton.solvers.SolverMuJoCo(
@@ -363,17 +375,20 @@ class NewtonEngine(Engine):
             njmax=450,
         )
         self._sensor_rows = self._sensor_layout()
-        self.sensor = SensorContact(
-            m,
-            sensing_bodies=self._sensor_bodies,
-            counterpart_shapes=[list(m.shape_label).index(GROUND_LABEL)],
-            measure_total=True,
-            request_contact_attributes=False,
-        )
+        kinds = {newton.solvers.SolverMuJoCo.ObservableKind.QFRC_ACTUATOR}
+        self.sensor = None  # a scene of ghosts only has no body to sense
+        if self._sensor_bodies:
+            self.sensor = SensorContact(
+                m,
+                sensing_bodies=self._sensor_bodies,
+                counterpart_shapes=[list(m.shape_label).index(GROUND_LABEL)],
+                measure_total=True,
+                request_contact_attributes=False,
+            )
+            kinds |= set(self.sensor.solver_observable_kinds)
         # MuJoCo finds the contacts itself; this buffer only receives them (and their forces) for the sensor.
         capacity = self.solver.get_max_contact_count()
         self.contacts = newton.CollisionPipeline(m, rigid_contact_max=capacity, soft_contact_max=0).contacts()
-        kinds = set(self.sensor.solver_observable_kinds) | {newton.solvers.SolverMuJoCo.ObservableKind.QFRC_ACTUATOR}
         self.observables = self.solver.observables(kinds=kinds, contacts=self.contacts)
         self.state = m.state()
         self.control = m.control()
@@ -450,7 +465,8 @@ class NewtonEngine(Engine):
             # Contact forces are exported only on the last substep: that is all the sensor reads.
             obs = self.observables if i == nsub - 1 else None
             self.solver.step(self.state, self.state, self.control, self.contacts, dt, observables=obs)
-        self.sensor.update(self.state, self.contacts, observables=self.observables)
+        if self.sensor is not None:
+            self.sensor.update(self.state, self.contacts, observables=self.observables)
         if self._has_forces:
             self._force_buf.zero_()
             self._has_forces = False
@@ -488,7 +504,7 @@ class NewtonEngine(Engine):
                 if len(lay.ball_cols):
                     t["dof_pos"][:, lay.ball_cols] = tu.quat_to_exp_map(self._jq[:, lay.ball_q])
                 t["dof_vel"].copy_(self._jqd[:, lay.dof_qd])
-        if contacts:
+        if contacts and self.sensor is not None:
             ground = wp.to_torch(self.sensor.force_matrix)[:, 0]  # [rows, 3]: the ground is counterpart 0
             total = wp.to_torch(self.sensor.total_force)
             for o, rows in self._sensor_rows:

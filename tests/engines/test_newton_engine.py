@@ -133,6 +133,14 @@ def test_disable_motors_leaves_a_limp_object_and_torque_mode_is_clipped():
     torch.testing.assert_close(engine.get_dof_forces(0)[0], limit)
 
 
+def test_visual_ghost_neither_collides_nor_falls():
+    engine = make_engine(is_visual=True, disable_motors=True, start_pos=(0.0, 0.0, 0.3))  # half in the floor
+    for _ in range(10):
+        engine.step()
+    torch.testing.assert_close(engine.get_root_pos(0), torch.tensor([[0.0, 0.0, 0.3]]), atol=1e-3, rtol=0)
+    assert engine.get_contact_forces(0).abs().max() == 0.0
+
+
 def test_pd_explicit_drives_a_hinge_on_a_fixed_base_and_rejects_ball_joints(tmp_path: Path):
     xml = tmp_path / "arm.xml"
     xml.write_text(
