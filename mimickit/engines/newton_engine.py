@@ -25,6 +25,9 @@ frame, angular velocities in world frame, ball-joint velocities in the child fra
 quaternions are exposed as exp-maps. Setters write joint_q/joint_qd and mark the state dirty; the next
 getter or step re-runs forward kinematics.
 
+Fixed-root objects (`fix_root`) are welded where `create_obj` put them: root setters leave them there (the
+MuJoCo engine moves them as mocap bodies; the reference edits `joint_X_p` behind the solver's back).
+
 Ground contact forces: `SensorContact` on every body of the non-visual objects with the ground plane as
 the one counterpart, fed by the solver's CONTACT_F observable after the last substep.
 """
