@@ -36,6 +36,8 @@ def build_env_from_configs(
         from mimickit.envs.deepmimic_env import DeepMimicEnv as cls
     elif env_cfg.env_name == "amp":
         from mimickit.envs.amp_env import AMPEnv as cls
+    elif env_cfg.env_name == "ase":
+        from mimickit.envs.ase_env import ASEEnv as cls
     elif env_cfg.env_name == "add":
         from mimickit.envs.add_env import ADDEnv as cls
     elif env_cfg.env_name == "view_motion":

@@ -83,6 +83,13 @@ class ADDEnvConfig(AMPEnvConfig):
     (humanoid: num_disc_obs_steps 1, log_tracking_error True)."""
 
 
+class ASEEnvConfig(AMPEnvConfig):
+    """AMP's fields plus the chance of starting an episode from the default pose (spec §5.5)."""
+
+    default_reset_prob: float = Field(ge=0, le=1)
+    """Per reset env, the probability of the init pose (zero velocities) instead of a clip state."""
+
+
 class ViewMotionEnvConfig(CharEnvConfig):
     motion_file: str
     global_obs: bool = False
@@ -97,6 +104,7 @@ ENV_CONFIGS: dict[str, type[CharEnvConfig]] = {
     "deepmimic": DeepMimicEnvConfig,
     "amp": AMPEnvConfig,
     "add": ADDEnvConfig,
+    "ase": ASEEnvConfig,
     "view_motion": ViewMotionEnvConfig,
     "char_dof_test": CharDofTestEnvConfig,
 }

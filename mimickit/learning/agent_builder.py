@@ -35,6 +35,8 @@ def build_agent_from_config(config: BaseAgentConfig, env: BaseEnv, device: torch
         from mimickit.learning.awr_agent import AWRAgent as cls
     elif config.agent_name == "AMP":
         from mimickit.learning.amp_agent import AMPAgent as cls
+    elif config.agent_name == "ASE":
+        from mimickit.learning.ase_agent import ASEAgent as cls
     elif config.agent_name == "ADD":
         from mimickit.learning.add_agent import ADDAgent as cls
     elif config.agent_name == "Dummy":

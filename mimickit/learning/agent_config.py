@@ -1,4 +1,4 @@
-"""Typed configs of the agents (spec §6.1, §6.5, §6.6, §6.7, §6.9, §6.12) and loading an agent yaml.
+"""Typed configs of the agents (spec §6.1, §6.5, §6.6, §6.7, §6.8, §6.9, §6.12) and loading an agent yaml.
 
 The reference's agent yamls are the format. An unknown key, a wrong type or a missing required key is
 one `MimicKitError` naming the file and the key; numbers written like `1e-4` are numbers. Batch sizes
@@ -11,7 +11,7 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from mimickit.util.config import ConfigModel, load_yaml, parse_config
 from mimickit.util.errors import MimicKitError
@@ -142,15 +142,50 @@ class ADDAgentConfig(AMPAgentConfig):
     agent_name: Literal["ADD"] = "ADD"  # type: ignore[assignment]
 
 
+class ASEModelConfig(AMPModelConfig):
+    enc_net: NetName
+    """Encoder MLP on the normalised disc obs; its output layer predicts the latent (unit-normalised)."""
+    latent_dim: int = Field(ge=1)
+    """Size of the skill latent z (humanoid: 64); actor and critic take [obs, z]."""
+
+
+class ASEAgentConfig(AMPAgentConfig):
+    """AMP plus skill latents, an encoder that recovers them from the disc obs and a diversity loss
+    (spec §6.8)."""
+
+    agent_name: Literal["ASE"] = "ASE"  # type: ignore[assignment]
+    model: ASEModelConfig
+    enc_optimizer: OptimizerConfig
+    latent_time_min: float = Field(ge=0)
+    """Seconds a latent is kept at least (the env's time is checked after every step)."""
+    latent_time_max: float = Field(ge=0)
+    enc_epochs: int = Field(ge=0)
+    enc_batch_size: float = Field(gt=0)
+    """Samples per encoder minibatch = ceil(enc_batch_size × num_envs)."""
+    enc_reward_weight: float
+    """r = task_reward_weight · r_env + disc_reward_weight · r_disc + enc_reward_weight · max(z·ẑ, 0)."""
+    diversity_weight: float = Field(ge=0)
+    diversity_tar: float
+    enc_eval_batch_size: int = Field(default=0, ge=0)
+    """Samples per encoder forward pass when computing rewards; 0 = all at once."""
+
+    @model_validator(mode="after")
+    def _latent_times_ordered(self) -> ASEAgentConfig:
+        if self.latent_time_max < self.latent_time_min:
+            raise ValueError("latent_time_max must be >= latent_time_min")
+        return self
+
+
 AGENT_CONFIGS: dict[str, type[BaseAgentConfig]] = {
     "PPO": PPOAgentConfig,
     "AWR": AWRAgentConfig,
     "AMP": AMPAgentConfig,
     "ADD": ADDAgentConfig,
+    "ASE": ASEAgentConfig,
     "Dummy": DummyAgentConfig,
 }
 # Agents of the reference that are not ported yet; named in the error message.
-_NOT_YET = ("ASE", "LCP", "SMP")
+_NOT_YET = ("LCP", "SMP")
 
 
 def load_agent_config(path: str | Path) -> BaseAgentConfig:

@@ -49,7 +49,7 @@ class PPOAgent(BaseAgent):
     def _decide_action(self, obs: torch.Tensor, info: dict[str, Any]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Env action [N, A] plus `a_logp` [N] (of the taken normalised action) and
         `rand_action_mask` [N] (1 where the env sampled, 0 where it took the mean)."""
-        dist = self._model.eval_actor(self._obs_norm.normalize(obs))
+        dist = self._eval_policy(obs)
         if self._mode == AgentMode.TRAIN:
             num_envs = obs.shape[0]
             prob = torch.full((num_envs,), self._get_exp_prob(), device=obs.device)
@@ -60,6 +60,10 @@ class PPOAgent(BaseAgent):
             rand_mask = torch.zeros(obs.shape[0], device=obs.device)
         a_logp = dist.log_prob(norm_a)
         return self._a_norm.unnormalize(norm_a), {"a_logp": a_logp, "rand_action_mask": rand_mask}
+
+    def _eval_policy(self, obs: torch.Tensor) -> GaussianDiag:
+        """The policy of the envs' current observations [N, obs_dim] (ASE adds each env's latent)."""
+        return self._model.eval_actor(self._obs_norm.normalize(obs))
 
     def _record_data_pre_step(
         self, obs: torch.Tensor, info: dict[str, Any], action: torch.Tensor, action_info: dict[str, torch.Tensor]

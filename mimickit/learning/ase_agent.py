@@ -1,0 +1,217 @@
+"""Adversarial Skill Embeddings (spec §6.8): AMP whose policy is conditioned on a skill latent z.
+
+* Every env holds a latent z ∈ R^latent_dim, uniform on the unit sphere. It is resampled when the env
+  resets and when the env's time reaches the latent's reset time (time at sampling + U[latent_time_min,
+  latent_time_max] s), checked after every env step in training and testing. z is recorded per step.
+* Actor and critic see [normalised obs, z].
+* Reward r = task_reward_weight · r_env + disc_reward_weight · r_disc + enc_reward_weight · r_enc with
+  r_enc = max(z·ẑ, 0), ẑ = encoder(normalised disc obs) (unit length), all with the networks and
+  normaliser as they were before this iteration's updates.
+* Updates: critic, actor (PPO + diversity_weight · diversity loss), discriminator (AMP), then the
+  encoder: `enc_epochs` over the rollout in minibatches of ceil(enc_batch_size × num_envs), loss
+  mean(−z·ẑ).
+* Diversity loss on an actor minibatch: draw new latents z′ for its observations; Δa = mean over action
+  dims of (μ(s,z′) − μ(s,z))², Δz = 0.5 − 0.5 z′·z; loss = mean (diversity_tar − Δa / (Δz + 1e-5))².
+The latents are not part of the checkpoint (the reference's keys: AMP's plus `_model._enc_layers.*`,
+`_model._enc_out.*`). The agent also hands the env its encoder reward, so `info["reward_terms"]`
+carries `enc` beside `task` and `disc`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Protocol, runtime_checkable
+
+import torch
+
+from mimickit.envs.base_env import BaseEnv, DoneFlags
+from mimickit.learning import ase_util, rl_util
+from mimickit.learning.agent_config import ASEAgentConfig
+from mimickit.learning.amp_agent import AMPAgent
+from mimickit.learning.ase_model import ASEModel
+from mimickit.learning.distributions import GaussianDiag
+from mimickit.learning.mp_optimizer import MPOptimizer
+from mimickit.util.errors import MimicKitError
+
+
+@runtime_checkable
+class LatentEnv(Protocol):
+    """What ASE needs beyond AMP's env: per-env time (for the latent schedule) and a place to report
+    the encoder reward (ASEEnv)."""
+
+    def get_env_time(self, env_ids: torch.Tensor | None = None) -> torch.Tensor: ...
+
+    def set_enc_reward_fn(self, fn: Any, enc_weight: float) -> None: ...
+
+
+class ASEAgent(AMPAgent):
+    config: ASEAgentConfig  # type: ignore[assignment]
+    _model: ASEModel
+
+    def __init__(self, config: ASEAgentConfig, env: BaseEnv, device: torch.device | str) -> None:
+        if not isinstance(env, LatentEnv):
+            raise MimicKitError(
+                f"agent ASE needs an env that reports the encoder reward (env_name ase), got {env.__class__.__name__}"
+            )
+        super().__init__(config, env, device)
+        self._latent_env: LatentEnv = env
+        n = env.get_num_envs()
+        self._latents = torch.zeros(n, config.model.latent_dim, device=self._device)
+        self._latent_reset_time = torch.zeros(n, device=self._device)
+        self._resample_latents(torch.arange(n, device=self._device))
+        env.set_enc_reward_fn(self._enc_reward_for_envs, config.enc_reward_weight)
+
+    # ---------------------------------------------------------------- builders
+
+    def _build_model(self) -> None:
+        disc_obs_size = math.prod(self._disc_env.get_disc_obs_space().shape)
+        self._model = ASEModel(self.config.model, self.get_obs_size(), self.get_action_size(), disc_obs_size)
+
+    def _build_optimizers(self) -> None:
+        super()._build_optimizers()
+        self._enc_optimizer = MPOptimizer(self.config.enc_optimizer, self._model.get_enc_params())
+
+    def _optimizers(self) -> dict[str, MPOptimizer]:
+        return {**super()._optimizers(), "enc": self._enc_optimizer}
+
+    # ---------------------------------------------------------------- latents
+
+    def get_latents(self) -> torch.Tensor:
+        """The envs' current latents [N, latent_dim] (unit length)."""
+        return self._latents
+
+    def _resample_latents(self, env_ids: torch.Tensor) -> None:
+        """New latents for env_ids, kept until env time + U[latent_time_min, latent_time_max] s."""
+        n = len(env_ids)
+        if n == 0:
+            return
+        cfg = self.config
+        self._latents[env_ids] = ase_util.sample_latents(n, cfg.model.latent_dim, self._device)
+        hold = torch.empty(n, device=self._device).uniform_(cfg.latent_time_min, cfg.latent_time_max)
+        self._latent_reset_time[env_ids] = self._env_time(env_ids) + hold
+
+    def _env_time(self, env_ids: torch.Tensor) -> torch.Tensor:
+        return self._latent_env.get_env_time(env_ids).to(self._device)
+
+    def _update_latent_schedule(self) -> None:
+        """Resample the latents whose hold time has run out."""
+        due = self._env_time(torch.arange(self.get_num_envs(), device=self._device)) >= self._latent_reset_time
+        self._resample_latents(due.nonzero().flatten())
+
+    def _latents_for(self, obs: torch.Tensor) -> torch.Tensor:
+        """The envs' latents for a batch of their observations; fresh ones for a batch of another size
+        (callers of `compute_action` that step their own set of states)."""
+        if obs.shape[0] == self._latents.shape[0]:
+            return self._latents
+        return ase_util.sample_latents(obs.shape[0], self.config.model.latent_dim, obs.device)
+
+    def _reset_envs(self, env_ids: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, Any]]:
+        out = super()._reset_envs(env_ids)
+        ids = torch.arange(self.get_num_envs(), device=self._device) if env_ids is None else env_ids
+        self._resample_latents(ids.to(self._device))
+        return out
+
+    def _reset_done_envs(
+        self, obs: torch.Tensor, info: dict[str, Any], done: torch.Tensor
+    ) -> tuple[torch.Tensor, dict[str, Any]]:
+        out = super()._reset_done_envs(obs, info, done)  # done envs' time is 0 again
+        self._resample_latents((done != DoneFlags.NULL).nonzero().flatten().to(self._device))
+        self._update_latent_schedule()
+        return out
+
+    # ---------------------------------------------------------------- acting and recording
+
+    def _actor_critic_input(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        return torch.cat([self._obs_norm.normalize(obs), z], dim=-1)
+
+    def _eval_policy(self, obs: torch.Tensor) -> GaussianDiag:
+        return self._model.eval_actor(self._actor_critic_input(obs, self._latents_for(obs)))
+
+    def _record_data_pre_step(
+        self, obs: torch.Tensor, info: dict[str, Any], action: torch.Tensor, action_info: dict[str, torch.Tensor]
+    ) -> None:
+        super()._record_data_pre_step(obs, info, action, action_info)
+        self._exp_buffer.record("latent", self._latents)
+
+    def _eval_critic_batched(self, obs: torch.Tensor) -> torch.Tensor:
+        """V([obs, z]) for the rollout's obs or next_obs [T, N, obs_dim] with each row's latent."""
+        latents = self._exp_buffer.get_data("latent")
+        flat_obs, flat_z = obs.reshape(-1, obs.shape[-1]), latents.reshape(-1, latents.shape[-1])
+        chunk = self.config.critic_eval_batch_size or flat_obs.shape[0]
+        vals = [
+            self._model.eval_critic(self._actor_critic_input(o, z))
+            for o, z in zip(flat_obs.split(chunk), flat_z.split(chunk), strict=True)
+        ]
+        return torch.cat(vals).reshape(obs.shape[:-1])
+
+    # ---------------------------------------------------------------- rewards
+
+    def _compute_rewards(self) -> dict[str, float]:
+        """AMP's task + disc reward, plus the weighted encoder reward, into the stored reward [T, N]."""
+        info = super()._compute_rewards()
+        buf = self._exp_buffer
+        enc_r = self._calc_enc_rewards(self._disc_input_flat(), buf.get_data_flat("latent"))
+        reward = buf.get_data("reward")
+        buf.set_data("reward", reward + self.config.enc_reward_weight * enc_r.view_as(reward))
+        std, mean = torch.std_mean(enc_r)
+        return {**info, "enc_reward_mean": mean.item(), "enc_reward_std": std.item()}
+
+    @torch.no_grad()
+    def _calc_enc_rewards(self, disc_obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        """Unweighted encoder reward [B] of unnormalised disc obs [B, disc_obs_dim] and latents [B, dim]."""
+        norm = self._disc_obs_norm.normalize(disc_obs)
+        chunk = self.config.enc_eval_batch_size or max(norm.shape[0], 1)
+        pred = torch.cat([self._model.eval_enc(x) for x in norm.split(chunk)])
+        return ase_util.enc_reward(z, pred)
+
+    def _enc_reward_for_envs(self, disc_obs: torch.Tensor, env_ids: torch.Tensor | None) -> torch.Tensor:
+        """The env's per-step `enc` term: its disc obs scored against the latents the envs act on."""
+        z = self._latents if env_ids is None else self._latents[env_ids.to(self._device)]
+        return self._calc_enc_rewards(disc_obs.to(self._device), z)
+
+    # ---------------------------------------------------------------- updates
+
+    def _update_model(self) -> dict[str, float]:
+        info = super()._update_model()  # critic, actor, discriminator
+        cfg = self.config
+        batch = int(math.ceil(cfg.enc_batch_size * self.get_num_envs()))
+        steps = int(math.ceil(self._exp_buffer.get_sample_count() / batch)) * cfg.enc_epochs
+        info.update(self._run_updates(self._enc_optimizer, self._compute_enc_loss, "enc_loss", batch, steps))
+        return info
+
+    def _compute_enc_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        pred = self._model.eval_enc(self._disc_obs_norm.normalize(batch["disc_obs"]))
+        return {"enc_loss": ase_util.enc_loss(batch["latent"], pred)}
+
+    def _compute_critic_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        pred = self._model.eval_critic(self._actor_critic_input(batch["obs"], batch["latent"]))
+        return {"critic_loss": (batch["tar_val"] - pred).square().mean()}
+
+    def _compute_actor_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor] | None:
+        """PPO's clipped surrogate on exploring rows with [obs, z], the actor penalties, and
+        diversity_weight × the diversity loss on the whole minibatch."""
+        mask = batch["rand_action_mask"] == 1.0
+        if not bool(mask.any()):
+            return None
+        obs, z = batch["obs"][mask], batch["latent"][mask]
+        dist = self._model.eval_actor(self._actor_critic_input(obs, z))
+        a_logp = dist.log_prob(self._a_norm.normalize(batch["action"][mask]))
+        ratio = torch.exp(a_logp - batch["a_logp"][mask])
+        clip = self.config.ppo_clip_ratio
+        info = {
+            "actor_loss": rl_util.ppo_surrogate_loss(ratio, batch["adv"][mask], clip),
+            "clip_frac": rl_util.ppo_clip_frac(ratio.detach(), clip),
+            "imp_ratio": ratio.detach().mean(),
+        }
+        info = self._add_actor_penalties(dist, info)
+        if self.config.diversity_weight != 0:
+            div = self._compute_diversity_loss(batch["obs"], batch["latent"])
+            info["actor_loss"] = info["actor_loss"] + self.config.diversity_weight * div
+            info["diversity_loss"] = div.detach()
+        return info
+
+    def _compute_diversity_loss(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        new_z = ase_util.sample_latents(z.shape[0], z.shape[-1], z.device)
+        mean_z = self._model.eval_actor(self._actor_critic_input(obs, z)).mode
+        mean_new_z = self._model.eval_actor(self._actor_critic_input(obs, new_z)).mode
+        return ase_util.diversity_loss(mean_z, mean_new_z, z, new_z, self.config.diversity_tar)

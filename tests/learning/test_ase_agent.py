@@ -1,0 +1,160 @@
+"""ASE: the latent, encoder and diversity functions against hand-computed values, and the agent on the
+real ASE env (MuJoCo humanoid, the project's demo clip): sizes, latent resampling, the agent's encoder
+reward / losses against the pure functions, default-pose resets."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from mimickit.envs.ase_env import ASEEnv
+from mimickit.envs.base_env import DoneFlags
+from mimickit.envs.env_builder import build_env
+from mimickit.learning import ase_util
+from mimickit.learning.agent_builder import build_agent_from_config
+from mimickit.learning.agent_config import ASEAgentConfig, load_agent_config
+from mimickit.learning.ase_agent import ASEAgent
+from mimickit.util.paths import PROJECT_DATA_DIR
+
+ENGINE = PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
+ASE_ENV = PROJECT_DATA_DIR / "envs/ase_humanoid_env.yaml"
+ASE_AGENT = PROJECT_DATA_DIR / "agents/ase_humanoid_agent.yaml"
+S2 = math.sqrt(0.5)
+
+
+# ------------------------------------------------------------------ the pure functions, by hand
+
+
+def test_sample_latents_are_unit_vectors():
+    z = ase_util.sample_latents(1000, 64)
+    assert z.shape == (1000, 64)
+    torch.testing.assert_close(z.norm(dim=-1), torch.ones(1000))
+    assert z.mean(0).abs().max() < 0.15, "spread over the sphere, not one direction"
+
+
+def test_enc_reward_and_loss_by_hand():
+    z = torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    pred = torch.tensor([[S2, S2], [-1.0, 0.0], [0.0, 1.0]])
+    # z·ẑ = 0.7071, −1, 1 → reward max(·, 0) = 0.7071, 0, 1; loss = −mean = −(0.7071 − 1 + 1)/3.
+    torch.testing.assert_close(ase_util.enc_reward(z, pred), torch.tensor([S2, 0.0, 1.0]))
+    assert ase_util.enc_loss(z, pred).item() == pytest.approx(-S2 / 3, rel=1e-6)
+
+
+def test_diversity_loss_by_hand():
+    z = torch.tensor([[1.0, 0.0], [1.0, 0.0]])
+    new_z = torch.tensor([[-1.0, 0.0], [0.0, 1.0]])  # Δz = 1, 0.5
+    mean_z = torch.tensor([[0.0, 0.0], [1.0, 1.0]])
+    mean_new = torch.tensor([[1.0, 1.0], [1.0, 2.0]])  # Δa = mean((1,1)²) = 1, mean((0,1)²) = 0.5
+    # ratio = 1/(1+1e-5), 0.5/(0.5+1e-5) ≈ 1, 1 → target 2: (2 − ratio)² ≈ 1 each.
+    r1, r2 = 1 / (1 + 1e-5), 0.5 / (0.5 + 1e-5)
+    expected = 0.5 * ((2 - r1) ** 2 + (2 - r2) ** 2)
+    assert ase_util.diversity_loss(mean_z, mean_new, z, new_z, 2.0).item() == pytest.approx(expected, rel=1e-6)
+
+
+# ------------------------------------------------------------------ the agent on the real env
+
+
+@pytest.fixture(scope="module")
+def agent() -> ASEAgent:
+    env = build_env(ASE_ENV, ENGINE, num_envs=4)
+    cfg = load_agent_config(ASE_AGENT)
+    assert isinstance(cfg, ASEAgentConfig)
+    # Small nets and buffers: the sizes under test come from the env and latent_dim, not the widths.
+    cfg.model.actor_net = cfg.model.critic_net = cfg.model.disc_net = cfg.model.enc_net = "fc_2layers_128units"
+    cfg.disc_buffer_size = 1000
+    cfg.steps_per_iter = 8
+    agent = build_agent_from_config(cfg, env)
+    assert isinstance(agent, ASEAgent)
+    return agent
+
+
+def test_sizes_and_checkpoint_keys(agent: ASEAgent):
+    env = agent._env
+    assert isinstance(env, ASEEnv)
+    assert env.get_disc_obs_space().shape == (1420,)  # spec §13
+    assert env.get_obs_space().shape == (140,)
+    assert agent.get_latents().shape == (4, 64)
+    state = agent.state_dict()
+    assert state["_model._actor_layers.0.weight"].shape[1] == 140 + 64
+    assert state["_model._critic_layers.0.weight"].shape[1] == 140 + 64
+    assert state["_model._enc_layers.0.weight"].shape[1] == 1420
+    assert state["_model._enc_out.weight"].shape[0] == 64
+    assert "_disc_obs_norm._mean" in state and "_model._disc_logits.weight" in state
+    assert not any("latent" in k for k in state), "latents are not checkpointed"
+
+
+def test_latents_resampled_on_reset_and_on_schedule(agent: ASEAgent):
+    env = agent._env
+    agent._reset_envs()
+    z0 = agent.get_latents().clone()
+    torch.testing.assert_close(z0.norm(dim=-1), torch.ones(4))
+    times = agent._latent_reset_time.clone()
+    assert bool(((times >= 0.0) & (times <= 5.0)).all())
+
+    # A done env gets a new latent; the others keep theirs while their time has not come.
+    agent._latent_reset_time[:] = 1e9
+    obs, info = env.reset()
+    done = torch.full((4,), DoneFlags.NULL.value, dtype=torch.int64)
+    done[2] = DoneFlags.FAIL.value
+    agent._reset_done_envs(obs, info, done)
+    z1 = agent.get_latents().clone()
+    assert not torch.allclose(z1[2], z0[2])
+    torch.testing.assert_close(z1[[0, 1, 3]], z0[[0, 1, 3]])
+
+    # An env whose hold time has run out gets a new latent after the next step, with a new reset time.
+    agent._latent_reset_time[:] = 1e9
+    agent._latent_reset_time[1] = 0.0
+    env.step(torch.zeros(4, agent.get_action_size()))
+    agent._reset_done_envs(obs, info, torch.full((4,), DoneFlags.NULL.value, dtype=torch.int64))
+    z2 = agent.get_latents()
+    assert not torch.allclose(z2[1], z1[1])
+    torch.testing.assert_close(z2[[0, 2, 3]], z1[[0, 2, 3]])
+    t = env.get_env_time(torch.tensor([1]))
+    assert t.item() <= agent._latent_reset_time[1].item() <= t.item() + 5.0
+    torch.testing.assert_close(z2.norm(dim=-1), torch.ones(4))
+
+
+def test_agent_enc_reward_and_losses_match_the_functions(agent: ASEAgent):
+    torch.manual_seed(0)
+    disc_obs = torch.randn(6, 1420)
+    z = ase_util.sample_latents(6, 64)
+    pred = agent._model.eval_enc(agent._disc_obs_norm.normalize(disc_obs))
+    torch.testing.assert_close(pred.norm(dim=-1), torch.ones(6))
+    cos = (z * pred).sum(-1)
+    torch.testing.assert_close(agent._calc_enc_rewards(disc_obs, z), cos.clamp_min(0).detach())
+    loss = agent._compute_enc_loss({"disc_obs": disc_obs, "latent": z})["enc_loss"]
+    assert loss.item() == pytest.approx(-cos.mean().item(), rel=1e-5, abs=1e-7)
+
+    obs = torch.randn(6, 140)
+    torch.manual_seed(1)
+    div = agent._compute_diversity_loss(obs, z)
+    torch.manual_seed(1)
+    new_z = ase_util.sample_latents(6, 64)
+    mu = agent._model.eval_actor(torch.cat([agent._obs_norm.normalize(obs), z], -1)).mode
+    mu_new = agent._model.eval_actor(torch.cat([agent._obs_norm.normalize(obs), new_z], -1)).mode
+    d_a = (mu_new - mu).square().mean(-1)
+    d_z = 0.5 - 0.5 * (new_z * z).sum(-1)
+    expected = (1.0 - d_a / (d_z + 1e-5)).square().mean()
+    assert div.item() == pytest.approx(expected.item(), rel=1e-5)
+
+
+def test_env_reports_the_enc_reward_of_the_current_latents(agent: ASEAgent):
+    env = agent._env
+    agent._reset_envs()
+    _, _, _, info = env.step(torch.zeros(4, agent.get_action_size()))
+    expected = agent._calc_enc_rewards(info["disc_obs"], agent.get_latents())
+    torch.testing.assert_close(info["reward_terms"]["enc"], expected)
+    assert env.reward_weights == {"task": 0.0, "disc": 0.5, "enc": 0.5}
+
+
+def test_default_reset_prob_puts_envs_in_the_init_pose():
+    env = build_env(ASE_ENV, ENGINE, num_envs=16)
+    env.config.default_reset_prob = 1.0
+    env.reset()
+    root = env._char_state()["root_pos"]
+    torch.testing.assert_close(root, env._init_root_pos.expand(16, -1))
+    env.config.default_reset_prob = 0.0
+    env.reset()
+    assert not torch.allclose(env._char_state()["root_pos"], env._init_root_pos.expand(16, -1))
