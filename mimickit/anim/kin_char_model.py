@@ -127,8 +127,9 @@ class KinCharModel:
         )
 
     def dof_array(self, attr: str) -> np.ndarray:
-        """A per-DoF joint attribute (`kp`, `kd`, `armature`, `torque_limit`) as [D]."""
-        return np.concatenate([getattr(j, attr) for j in self.joints[1:]]).astype(np.float64)
+        """A per-DoF joint attribute (`kp`, `kd`, `armature`, `torque_limit`) as [D] ([0] for a single rigid body)."""
+        values = [getattr(j, attr) for j in self.joints[1:]]
+        return np.concatenate(values).astype(np.float64) if values else np.zeros(0)
 
     def dof_joint_ids(self) -> np.ndarray:
         """For each DoF, the index (0..J-2) of the non-root joint that owns it."""

@@ -40,6 +40,10 @@ def build_env_from_configs(
         from mimickit.envs.ase_env import ASEEnv as cls
     elif env_cfg.env_name == "add":
         from mimickit.envs.add_env import ADDEnv as cls
+    elif env_cfg.env_name == "task_location":
+        from mimickit.envs.task_location_env import TaskLocationEnv as cls
+    elif env_cfg.env_name == "task_steering":
+        from mimickit.envs.task_steering_env import TaskSteeringEnv as cls
     elif env_cfg.env_name == "view_motion":
         from mimickit.envs.view_motion_env import ViewMotionEnv as cls
     elif env_cfg.env_name == "char_dof_test":

@@ -83,6 +83,36 @@ class ADDEnvConfig(AMPEnvConfig):
     (humanoid: num_disc_obs_steps 1, log_tracking_error True)."""
 
 
+class TaskLocationEnvConfig(AMPEnvConfig):
+    """AMP + walk to a target location on the ground (spec §5.7; humanoid: speed 1, change 5–10 s, dist ≤ 10)."""
+
+    tar_speed: float = Field(gt=0, description="m/s the velocity reward asks for towards the target")
+    tar_change_time_min: float = Field(gt=0, description="s")
+    tar_change_time_max: float = Field(gt=0, description="s")
+    tar_dist_max: float = Field(gt=0, description="m from the root")
+    tar_dist_min: float = Field(0.0, ge=0)
+    dist_threshold: float = Field(0.5, description="squared xy distance (m²) that counts as at the target")
+    pos_err_scale: float = 0.5
+    vel_err_scale: float = 4.0
+    pos_reward_w: float = 0.5
+    vel_reward_w: float = 0.4
+    face_reward_w: float = 0.1
+
+
+class TaskSteeringEnvConfig(AMPEnvConfig):
+    """AMP + move in a commanded direction at a commanded speed, optionally facing another way (spec §5.7)."""
+
+    rand_tar_dir: bool = True
+    rand_face_dir: bool = True
+    tar_speed_min: float = Field(ge=0, description="m/s")
+    tar_speed_max: float = Field(ge=0, description="m/s")
+    tar_change_time_min: float = Field(gt=0, description="s")
+    tar_change_time_max: float = Field(gt=0, description="s")
+    reward_steering_tar_w: float
+    reward_steering_face_w: float
+    reward_steering_vel_scale: float
+
+
 class ASEEnvConfig(AMPEnvConfig):
     """AMP's fields plus the chance of starting an episode from the default pose (spec §5.5)."""
 
@@ -105,6 +135,8 @@ ENV_CONFIGS: dict[str, type[CharEnvConfig]] = {
     "amp": AMPEnvConfig,
     "add": ADDEnvConfig,
     "ase": ASEEnvConfig,
+    "task_location": TaskLocationEnvConfig,
+    "task_steering": TaskSteeringEnvConfig,
     "view_motion": ViewMotionEnvConfig,
     "char_dof_test": CharDofTestEnvConfig,
 }
