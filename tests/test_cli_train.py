@@ -94,3 +94,18 @@ def test_sigterm_mid_run_saves_a_loadable_checkpoint_and_exits_zero(tmp_path: Pa
     )  # fmt: skip
     assert r.returncode == 0, r.stderr[-3000:]
     assert json.loads(r.stdout.strip().splitlines()[-1])["episodes"] >= 2
+
+
+def test_shipped_walk_model_walks_the_whole_clip(test_data: Path) -> None:
+    """The shipped walk policy, tested as its sidecar arg file says, keeps every episode to the time
+    limit (an untrained policy falls within ~1 s) and tracks the clip's bodies within 0.1 m."""
+    sidecar = PROJECT_ROOT / "data/models/deepmimic_humanoid_walk_model.txt"
+    r = mimickit(
+        "test", "--arg_file", str(sidecar), "--data_dir", str(test_data), "--num_envs", "4",
+        "--model_file", str(PROJECT_ROOT / "data/models/deepmimic_humanoid_walk_model.pt"),
+        "--test_episodes", "4", "--json",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["mean_episode_length"] >= 0.9 * 300, out
+    assert out["tracking"]["pos_err_m"] < 0.1, out
