@@ -25,7 +25,7 @@ from typing import Any, Protocol, runtime_checkable
 import torch
 
 from mimickit.envs.base_env import BaseEnv, DoneFlags
-from mimickit.learning import ase_util, rl_util
+from mimickit.learning import ase_util
 from mimickit.learning.agent_config import ASEAgentConfig
 from mimickit.learning.amp_agent import AMPAgent
 from mimickit.learning.ase_model import ASEModel
@@ -183,28 +183,16 @@ class ASEAgent(AMPAgent):
         pred = self._model.eval_enc(self._disc_obs_norm.normalize(batch["disc_obs"]))
         return {"enc_loss": ase_util.enc_loss(batch["latent"], pred)}
 
-    def _compute_critic_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        pred = self._model.eval_critic(self._actor_critic_input(batch["obs"], batch["latent"]))
-        return {"critic_loss": (batch["tar_val"] - pred).square().mean()}
+    def _net_input(self, batch: dict[str, torch.Tensor], rows: torch.Tensor | None = None) -> torch.Tensor:
+        if rows is None:
+            return self._actor_critic_input(batch["obs"], batch["latent"])
+        return self._actor_critic_input(batch["obs"][rows], batch["latent"][rows])
 
     def _compute_actor_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor] | None:
-        """PPO's clipped surrogate on exploring rows with [obs, z], the actor penalties, and
-        diversity_weight × the diversity loss on the whole minibatch."""
-        mask = batch["rand_action_mask"] == 1.0
-        if not bool(mask.any()):
-            return None
-        obs, z = batch["obs"][mask], batch["latent"][mask]
-        dist = self._model.eval_actor(self._actor_critic_input(obs, z))
-        a_logp = dist.log_prob(self._a_norm.normalize(batch["action"][mask]))
-        ratio = torch.exp(a_logp - batch["a_logp"][mask])
-        clip = self.config.ppo_clip_ratio
-        info = {
-            "actor_loss": rl_util.ppo_surrogate_loss(ratio, batch["adv"][mask], clip),
-            "clip_frac": rl_util.ppo_clip_frac(ratio.detach(), clip),
-            "imp_ratio": ratio.detach().mean(),
-        }
-        info = self._add_actor_penalties(dist, info)
-        if self.config.diversity_weight != 0:
+        """PPO's clipped surrogate and actor penalties on [obs, z], plus diversity_weight × the
+        diversity loss on the whole minibatch."""
+        info = super()._compute_actor_loss(batch)
+        if info is not None and self.config.diversity_weight != 0:
             div = self._compute_diversity_loss(batch["obs"], batch["latent"])
             info["actor_loss"] = info["actor_loss"] + self.config.diversity_weight * div
             info["diversity_loss"] = div.detach()

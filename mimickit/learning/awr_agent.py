@@ -37,7 +37,7 @@ class AWRAgent(PPOAgent):
         mask = batch["rand_action_mask"] == 1.0
         if not bool(mask.any()):
             return None
-        dist = self._model.eval_actor(self._obs_norm.normalize(batch["obs"][mask]))
+        dist = self._model.eval_actor(self._net_input(batch, mask))
         a_logp = dist.log_prob(self._a_norm.normalize(batch["action"][mask]))
         info = {"actor_loss": -(batch["a_weight"][mask] * a_logp).mean()}
         return self._add_actor_penalties(dist, info)

@@ -156,15 +156,21 @@ class PPOAgent(BaseAgent):
 
     def _compute_critic_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """mean (R − V(s))², no clipping."""
-        pred = self._model.eval_critic(self._obs_norm.normalize(batch["obs"]))
+        pred = self._model.eval_critic(self._net_input(batch))
         return {"critic_loss": (batch["tar_val"] - pred).square().mean()}
+
+    def _net_input(self, batch: dict[str, torch.Tensor], rows: torch.Tensor | None = None) -> torch.Tensor:
+        """What the actor and critic read for a minibatch (or its `rows`): the normalised observation.
+        Agents that condition on more (ASE's latents) override this one method."""
+        obs = batch["obs"] if rows is None else batch["obs"][rows]
+        return self._obs_norm.normalize(obs)
 
     def _compute_actor_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor] | None:
         """Clipped surrogate on exploring rows, plus the actor penalties (all in `actor_loss`)."""
         mask = batch["rand_action_mask"] == 1.0
         if not bool(mask.any()):
             return None
-        dist = self._model.eval_actor(self._obs_norm.normalize(batch["obs"][mask]))
+        dist = self._model.eval_actor(self._net_input(batch, mask))
         a_logp = dist.log_prob(self._a_norm.normalize(batch["action"][mask]))
         ratio = torch.exp(a_logp - batch["a_logp"][mask])
         clip = self.config.ppo_clip_ratio
