@@ -4,14 +4,12 @@ three iterations of 4 envs."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-import pytest
 import torch
 
 from mimickit.util.paths import PROJECT_ROOT
-from tests.test_cli_train import metrics, mimickit
+from tests.learning.adversarial_cli import check_disc_log, check_disc_rows, test_json, train_short
 
 ARG_FILE = PROJECT_ROOT / "args" / "add_humanoid_args.txt"
 DISC_COLUMNS = [
@@ -24,27 +22,17 @@ TRACKING = ["root_pos_err", "root_rot_err", "body_pos_err", "body_rot_err", "dof
 
 def test_add_train_writes_outputs_and_the_checkpoint_tests_in_a_fresh_process(tmp_path: Path, test_data: Path) -> None:
     out = tmp_path / "run"
-    common = ["--arg_file", str(ARG_FILE), "--data_dir", str(test_data)]
-    r = mimickit("train", *common, "--num_envs", "4", "--max_samples", "384", "--out_dir", str(out), "--rand_seed", "0")
-    assert r.returncode == 0, r.stderr[-3000:]
-    for name in ("log.txt", "metrics.jsonl", "model.pt", "env_config.yaml", "agent_config.yaml"):
-        assert (out / name).is_file(), name
+    data = ["--data_dir", str(test_data)]
+    rows = train_short(ARG_FILE, out, 384, *data)
     assert "humanoid_walk.pkl" in (out / "env_config.yaml").read_text()
+    header = check_disc_log(out, DISC_COLUMNS)
+    i = header.index("Disc_Reward_Std") + 1
+    assert [c.title() for c in TRACKING] == header[i : i + 7], "log_tracking_error: the test-mode means"
 
-    header = (out / "log.txt").read_text().splitlines()[0].split()
-    i = header.index("Action_Bound_Loss")  # the reference's order: disc terms after the actor's
-    assert header[i + 1 : i + 8] == DISC_COLUMNS
-    assert header[i + 8 : i + 12] == ["Adv_Mean", "Adv_Std", "Disc_Reward_Mean", "Disc_Reward_Std"]
-    assert [c.title() for c in TRACKING] == header[i + 12 : i + 19], "log_tracking_error: the test-mode means"
-
-    rows = metrics(out)
     assert [m["samples"] for m in rows] == [128, 256, 384]
+    check_disc_rows(rows, DISC_COLUMNS)
     for row in rows:
-        for key in [c.lower() for c in DISC_COLUMNS] + ["disc_reward_mean", "disc_reward_std"]:
-            assert key in row and row[key] is not None, key
         assert 0.0 <= row["disc_pos_acc"] <= 1.0 and 0.0 <= row["disc_neg_acc"] <= 1.0
-        assert row["reward_terms.disc"] == pytest.approx(row["disc_reward_mean"], rel=1e-4)
-        assert row["reward_terms.task"] == 0.0
         assert all(row[f"tracking.{k}"] >= 0.0 for k in TRACKING)
     # Any drift from the clip is a negative: the discriminator ranks the zero difference above them.
     assert rows[-1]["disc_neg_logit"] < rows[-1]["disc_pos_logit"]
@@ -54,11 +42,6 @@ def test_add_train_writes_outputs_and_the_checkpoint_tests_in_a_fresh_process(tm
     assert state["_disc_obs_norm._mean_abs"].shape == (172,) and "_disc_obs_norm._mean" not in state
     assert state["_disc_obs_norm._count"].item() == 384
 
-    r = mimickit(
-        "test", *common, "--num_envs", "2", "--model_file", str(out / "model.pt"), "--test_episodes", "2", "--json"
-    )
-    assert r.returncode == 0, r.stderr[-3000:]
-    result = json.loads(r.stdout.strip().splitlines()[-1])
-    assert result["episodes"] >= 2 and 0 < result["mean_episode_length"] <= 300
+    result = test_json(ARG_FILE, out / "model.pt", *data)
     assert result["mean_return"] == 0.0, "ADD envs have no task reward (the reference logs 0 too)"
     assert 0.001 < result["tracking"]["pos_err_m"] < 1.0

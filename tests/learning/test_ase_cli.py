@@ -3,29 +3,20 @@ humanoid ASE env (MuJoCo) and the reference agent yaml, two iterations of 4 envs
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
 import torch
 
 from mimickit.util.paths import PROJECT_ROOT
-from tests.test_cli_train import metrics, mimickit
+from tests.learning.adversarial_cli import test_json, train_short
 
 ARG_FILE = PROJECT_ROOT / "args" / "ase_humanoid_args.txt"
 
 
 def test_ase_train_writes_enc_metrics_and_the_checkpoint_tests_in_a_fresh_process(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    r = mimickit(
-        "train", "--arg_file", str(ARG_FILE), "--num_envs", "4", "--max_samples", "256", "--out_dir", str(out),
-        "--rand_seed", "0",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr[-3000:]
-    for name in ("log.txt", "metrics.jsonl", "model.pt"):
-        assert (out / name).is_file(), name
-
-    rows = metrics(out)
+    rows = train_short(ARG_FILE, out, 256)
     assert [m["samples"] for m in rows] == [128, 256]
     for row in rows:
         for key in ("disc_loss", "disc_agent_acc", "enc_loss", "diversity_loss", "enc_reward_mean", "disc_reward_mean"):
@@ -45,10 +36,4 @@ def test_ase_train_writes_enc_metrics_and_the_checkpoint_tests_in_a_fresh_proces
     assert state["_model._enc_out.weight"].shape == (64, 512)  # fc_2layers_1024units ends in 512
     assert state["_disc_obs_norm._mean"].shape == (1420,)
 
-    r = mimickit(
-        "test", "--arg_file", str(ARG_FILE), "--num_envs", "2", "--model_file", str(out / "model.pt"),
-        "--test_episodes", "2", "--json",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr[-3000:]
-    result = json.loads(r.stdout.strip().splitlines()[-1])
-    assert result["episodes"] >= 2 and 0 < result["mean_episode_length"] <= 300
+    test_json(ARG_FILE, out / "model.pt")
