@@ -1,0 +1,45 @@
+"""Every shipped arg file names only arguments `mimickit` reads, and the configs it names exist and
+validate (env, engine and agent yamls), so a typo in a rarely run arg file fails here, not an hour
+into someone's run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mimickit.envs.env_config import load_env_configs
+from mimickit.learning.agent_config import load_agent_config
+from mimickit.util.arg_parser import ArgParser
+from mimickit.util.paths import PROJECT_ROOT, resolve_data_path
+
+ARG_FILES = sorted((PROJECT_ROOT / "args").glob("*_args.txt"))
+KNOWN_ARGS = {
+    "arg_file", "mode", "num_envs", "engine_config", "env_config", "agent_config", "out_dir", "model_file",
+    "max_samples", "test_episodes", "logger", "rand_seed", "devices", "video", "visualize", "data_dir",
+    "save_int_models", "master_port",
+}  # fmt: skip
+
+
+def test_every_arg_file_is_checked() -> None:
+    assert len(ARG_FILES) >= 20
+
+
+@pytest.mark.parametrize("arg_file", ARG_FILES, ids=lambda p: p.name)
+def test_arg_file_names_known_args_and_valid_configs(arg_file: Path) -> None:
+    args = ArgParser()
+    args.load_file(str(arg_file))
+    unknown = set(args.all_keys()) - KNOWN_ARGS
+    assert not unknown, f"{arg_file.name}: unknown arguments {sorted(unknown)}"
+    assert args.parse_int("num_envs", 1) >= 1
+
+    paths = {}
+    for key in ("env_config", "engine_config", "agent_config"):
+        value = args.parse_string(key, "")
+        if value:
+            paths[key] = resolve_data_path(value)
+            assert paths[key].is_file(), f"{arg_file.name}: --{key} {value} not found"
+    assert "env_config" in paths, f"{arg_file.name}: no --env_config"
+    load_env_configs(paths["env_config"], paths.get("engine_config"))
+    if "agent_config" in paths:
+        load_agent_config(paths["agent_config"])
