@@ -90,7 +90,6 @@ class AMPEnv(DeepMimicEnv):
     def _push_disc_hist(self) -> None:
         """Shift every history one step back and append the character's live state as the newest."""
         state = self._char_state()
-        state["joint_rot"] = self._char_model.dof_to_rot(state["dof_pos"])
         state["body_pos"] = state["body_pos"][:, self._disc_body_ids]
         for k in _HIST_KEYS:
             buf = self._disc_hist[k]

@@ -112,7 +112,16 @@ class CharEnv(SimEnv):
         self._engine.set_cmd(self._char_id, cmd)
 
     def _char_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """The character's live state from the engine, optionally for a subset of envs."""
+        """The character's live state from the engine (plus `joint_rot`, the DoFs as local joint
+        rotations), optionally for a subset of envs. The all-env state is computed once per step while
+        step() only reads the sim; callers get their own dict and must not write into its tensors."""
+        if env_ids is None and self._state_frozen:
+            if "char" not in self._state_cache:
+                self._state_cache["char"] = self._read_char_state(None)
+            return dict(self._state_cache["char"])
+        return self._read_char_state(env_ids)
+
+    def _read_char_state(self, env_ids: torch.Tensor | None) -> dict[str, torch.Tensor]:
         e, c = self._engine, self._char_id
         state = {
             "root_pos": e.get_root_pos(c),
@@ -126,6 +135,7 @@ class CharEnv(SimEnv):
         }
         if env_ids is not None:
             state = {k: v[env_ids] for k, v in state.items()}
+        state["joint_rot"] = self._char_model.dof_to_rot(state["dof_pos"])
         return state
 
     def _compute_obs(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
@@ -135,7 +145,7 @@ class CharEnv(SimEnv):
             s["root_rot"],
             s["root_vel"],
             s["root_ang_vel"],
-            self._char_model.dof_to_rot(s["dof_pos"]),
+            s["joint_rot"],
             s["dof_vel"],
             s["body_pos"][:, self._key_body_ids],
             self.config.global_obs,

@@ -192,20 +192,22 @@ class DeepMimicEnv(CharEnv):
 
     def _compute_obs(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
         obs = [super()._compute_obs(env_ids)]
-        ids = torch.arange(self.num_envs, device=self.device) if env_ids is None else env_ids
         if self.config.enable_phase_obs:
-            phase = self._motion_lib.calc_motion_phase(self._motion_ids[ids], self.get_motion_time(ids))
+            ids = self._motion_ids if env_ids is None else self._motion_ids[env_ids]
+            phase = self._motion_lib.calc_motion_phase(ids, self.get_motion_time(env_ids))
             obs.append(compute_phase_obs(phase, self.config.num_phase_encoding))
         if self.config.enable_tar_obs:
-            obs.append(self._compute_tar_obs(ids))
+            obs.append(self._compute_tar_obs(env_ids))
         return torch.cat(obs, dim=-1)
 
-    def _compute_tar_obs(self, ids: torch.Tensor) -> torch.Tensor:
-        """Target frames from the buffers `_eval_ref` filled for the current motion time."""
-        tar = {k: v[ids] for k, v in self._tar.items()}
+    def _compute_tar_obs(self, env_ids: torch.Tensor | None) -> torch.Tensor:
+        """Target frames from the buffers `_eval_ref` filled for the current motion time (all envs: the
+        buffers themselves, no copy)."""
+        tar = dict(self._tar) if env_ids is None else {k: v[env_ids] for k, v in self._tar.items()}
         tar["key_pos"] = tar.pop("body_pos")[:, :, self._key_body_ids]
         if self.config.global_obs:
-            ref_pos, ref_rot = self._engine.get_root_pos(self._char_id)[ids], tar["root_rot"][:, 0]
+            root_pos = self._engine.get_root_pos(self._char_id)
+            ref_pos, ref_rot = root_pos if env_ids is None else root_pos[env_ids], tar["root_rot"][:, 0]
         else:
             ref_pos, ref_rot = tar["root_pos"][:, 0], tar["root_rot"][:, 0]
         return compute_tar_obs(
@@ -215,7 +217,6 @@ class DeepMimicEnv(CharEnv):
 
     def _sim_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         s = self._char_state(env_ids)
-        s["joint_rot"] = self._char_model.dof_to_rot(s["dof_pos"])
         s["key_pos"] = s["body_pos"][:, self._key_body_ids]
         return s
 

@@ -29,6 +29,8 @@ class SimEnv(BaseEnv):
     ) -> None:
         super().__init__(num_envs, device)
         self.profiler = PhaseTimer()
+        self._state_frozen = False  # True while step() only reads the sim (see step)
+        self._state_cache: dict[str, Any] = {}
         self.config = env_config
         self.engine_config = engine_config
         self._visualize = visualize
@@ -102,12 +104,18 @@ class SimEnv(BaseEnv):
         with self.profiler.phase("task"):
             self._update_time()
             self._update_misc()
-        with self.profiler.phase("observation"):
-            self._obs_buf[:] = self._compute_obs()
-        with self.profiler.phase("reward_done"):
-            self._update_info()
-            self._update_reward()
-            self._update_done()
+        # Observation, info, reward and done only read the sim: within them a state read may be cached.
+        self._state_frozen = True
+        try:
+            with self.profiler.phase("observation"):
+                self._obs_buf[:] = self._compute_obs()
+            with self.profiler.phase("reward_done"):
+                self._update_info()
+                self._update_reward()
+                self._update_done()
+        finally:
+            self._state_frozen = False
+            self._state_cache.clear()
         return self._obs_buf, self._reward_buf, self._done_buf, self._info
 
     # ------------------------------------------------------------- internals
