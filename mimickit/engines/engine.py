@@ -14,16 +14,22 @@ Getters return live views: after `step()` (or any setter followed by a getter) t
 from __future__ import annotations
 
 import abc
+import math
 import time
+import warnings
 from collections.abc import Callable
 from enum import IntEnum
-from typing import Any, Literal
+from pathlib import Path
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import torch
 from pydantic import field_validator, model_validator
 
+from mimickit.anim.kin_char_model import KinCharModel
 from mimickit.util.config import ConfigModel
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import resolve_data_path
 
 SUPPORTED_ENGINES = ("mujoco", "newton")
 
@@ -35,7 +41,7 @@ class ControlMode(IntEnum):
     pos = 1  # implicit PD toward position targets inside the solver
     vel = 2  # damping toward velocity targets
     torque = 3  # commands are joint torques
-    pd_explicit = 4  # PD torques computed by the engine each substep (joints with at most 1 DoF)
+    pd_explicit = 4  # PD torques computed by the engine each substep (hinges and ball-joint exp-maps)
 
 
 # Names accepted in yaml besides the member names ("pd_1d" is what the project brief calls pd_explicit).
@@ -60,6 +66,18 @@ class EngineConfig(ConfigModel):
     """Physics rate in Hz; a multiple of control_freq."""
     env_spacing: float
     """Grid spacing (m) between envs when drawn; the envs themselves do not share a world."""
+    ball_joint_limits: Literal["cone", "none"] = "cone"
+    """How 3-D (ball) joints are limited. "cone": the joint's total rotation angle stays below the largest
+    |bound| of its three hinge ranges (so no single-axis motion the MJCF allows is cut): the only ball-joint
+    limit MuJoCo has, used by both engines (Newton's SolverMuJoCo builds a MuJoCo model) so that they agree.
+    PhysX-style per-axis box limits are not expressible as a MuJoCo constraint. "none": unlimited, as
+    Newton's MJCF import leaves them. Either way the per-axis ranges bound the actions
+    (`get_obj_dof_limits`). Measured on the 23 humanoid reference clips (2,926 frames): 164 frames in 14
+    clips have a ball joint past its cone, worst neck 1.39 rad vs 1.05 (dance_a, punch 1.35), right ankle
+    1.16 vs 0.96 (sideflip), abdomen 1.62 vs 1.57 (double_kong), right hip 2.53 vs 2.44 (backflip); over
+    all 215 clips incl. long/ and parc/ 784 of 63,712 frames, worst abdomen 1.80 (parc climb00). A reset to
+    such a frame starts inside the limit constraint, which pushes the joint back (dance_a's neck at 1.39 rad:
+    at 1.05 within 3 control steps, tracking the clip in pos mode). The shipped walk clip stays inside."""
     ground_contact_height: float = 0.3
     """Isaac Gym's height threshold for "ground" contacts; MuJoCo reports true floor contacts instead."""
     integrator: Literal["implicitfast", "implicit", "euler", "rk4"] = "implicitfast"
@@ -118,6 +136,20 @@ EnvIds = torch.Tensor | np.ndarray | list[int] | None
 """Env indices (LongTensor / int array / list) or None for all envs."""
 
 
+class ObjRecord(Protocol):
+    """What an engine stores per `create_obj` call; equal signatures = the same object in every env."""
+
+    def signature(self) -> tuple: ...
+
+
+def ball_cone_angle(low: np.ndarray, high: np.ndarray) -> float | None:
+    """The cone limit (rad) of a 3-D joint with per-axis bounds low/high [3]: the largest |bound|, so that
+    every single-axis rotation the bounds allow stays reachable; None when that is π or more (an exp-map
+    angle never exceeds π, so such a cone limits nothing)."""
+    angle = float(np.max(np.abs(np.concatenate([low, high]))))
+    return angle if angle < math.pi else None
+
+
 class Engine(abc.ABC):
     """Base class of the physics engines; see the module docstring for shapes and frames."""
 
@@ -126,6 +158,8 @@ class Engine(abc.ABC):
         self._num_envs = int(num_envs)
         self._device = torch.device(device)
         self._visualize = visualize
+        self._env_objs: list[list[ObjRecord]] = []  # per env, per object
+        self._start_poses: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per env, per obj: (pos[3], xyzw[4])
         self._keyboard_callbacks: dict[str, Callable[[], None]] = {}
         self._camera_pos = np.array([-3.5, -3.5, 1.0])
         self._camera_dir = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
@@ -140,9 +174,14 @@ class Engine(abc.ABC):
     @abc.abstractmethod
     def get_name(self) -> str: ...
 
-    @abc.abstractmethod
     def create_env(self) -> int:
         """Start the next env; returns its index (0, 1, ... < num_envs)."""
+        env_id = len(self._env_objs)
+        if env_id >= self._num_envs:
+            raise MimicKitError(f"create_env: all {self._num_envs} envs already exist")
+        self._env_objs.append([])
+        self._start_poses.append([])
+        return env_id
 
     @abc.abstractmethod
     def create_obj(
@@ -167,6 +206,67 @@ class Engine(abc.ABC):
     @abc.abstractmethod
     def initialize_sim(self) -> None:
         """Finalize the worlds after all envs and objects are created."""
+
+    @abc.abstractmethod
+    def _sim_initialized(self) -> bool:
+        """Whether initialize_sim has built the model (no more objects can be added)."""
+
+    # ------------------------------------------------------------------ object bookkeeping (both engines)
+    def _check_new_obj(self, env_id: int, asset_file: str) -> str:
+        """Validate a `create_obj` call; returns the asset's resolved path (configs name assets as
+        "data/assets/...")."""
+        if self._sim_initialized():
+            raise MimicKitError("create_obj: the simulation is already initialized")
+        if not 0 <= env_id < len(self._env_objs):
+            raise MimicKitError(f"create_obj: env {env_id} was not created (call create_env first)")
+        path = str(resolve_data_path(asset_file))
+        if not Path(path).is_file():
+            raise MimicKitError(f"asset file not found: {path}")
+        return path
+
+    def _add_obj(self, env_id: int, rec: ObjRecord, start_pos: np.ndarray | None,
+                 start_rot: np.ndarray | None) -> int:  # fmt: skip
+        """Store a validated object and its start pose (identity / origin by default); returns its obj_id."""
+        pos = np.zeros(3) if start_pos is None else np.asarray(start_pos, dtype=np.float64).reshape(3)
+        rot = np.array([0.0, 0.0, 0.0, 1.0]) if start_rot is None else np.asarray(start_rot, np.float64).reshape(4)
+        self._env_objs[env_id].append(rec)
+        self._start_poses[env_id].append((pos, rot / np.linalg.norm(rot)))
+        return len(self._env_objs[env_id]) - 1
+
+    def _check_env_objects(self) -> list[Any]:
+        """Every env created, each with env 0's objects (one model serves all envs); returns env 0's."""
+        if len(self._env_objs) != self._num_envs:
+            raise MimicKitError(f"initialize_sim: {len(self._env_objs)} of {self._num_envs} envs were created")
+        objs = self._env_objs[0]
+        for e, env_objs in enumerate(self._env_objs):
+            if [o.signature() for o in env_objs] != [o.signature() for o in objs]:
+                raise MimicKitError(
+                    f"env {e} has different objects than env 0; the {self.get_name()} engine needs identical "
+                    "object lists"
+                )
+        return objs
+
+    def _warn_explicit_damping(self, kin: KinCharModel, kd: np.ndarray, inertia: np.ndarray) -> None:
+        """pd_explicit applies the damping explicitly: a DoF of effective inertia M (mass-matrix diagonal with
+        armature, [D] `inertia`) diverges once kd·dt / M ≥ 2, where pos mode's implicit damping does not.
+        Measured on the humanoid: the ankles reach 14.6 at 240 Hz and fall; 1920 Hz (1.8) holds the pose."""
+        ratio = kd * self.get_sim_timestep() / np.maximum(inertia, 1e-12)
+        worst = int(np.argmax(ratio)) if len(ratio) else -1
+        if worst < 0 or ratio[worst] < 2.0:
+            return
+        stable_freq = math.ceil(self._config.sim_freq * ratio[worst] / 2.0)
+        joint = kin.joints[1 + int(kin.dof_joint_ids()[worst])]
+        dof = f"{joint.name}[{worst - joint.dof_idx}]" if joint.dof_dim > 1 else joint.name
+        warnings.warn(
+            f"control_mode pd_explicit: the explicit PD damping diverges at sim_freq {self._config.sim_freq} Hz "
+            f"on '{kin.source}' (kd·dt/M = {ratio[worst]:.1f} at DoF {dof}, stable below 2); use a "
+            f"sim_freq above {stable_freq} Hz or control_mode pos",
+            stacklevel=4,  # the caller of initialize_sim
+        )
+
+    def _ball_cone(self, low: np.ndarray, high: np.ndarray) -> float | None:
+        """The cone limit (rad) to enforce on a ball joint with per-axis bounds low/high [3], None for none."""
+        return ball_cone_angle(low, high) if self._config.ball_joint_limits == "cone" else None
 
     @abc.abstractmethod
     def set_cmd(self, obj_id: int, cmd: torch.Tensor) -> None:

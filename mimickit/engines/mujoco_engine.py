@@ -22,17 +22,25 @@ recomputes the kinematics of those envs only (contact forces keep their last-ste
 Frames (spec §2.4): MuJoCo's free joint velocity is (origin linear velocity in world frame, angular
 velocity in body frame); the framework uses (centre-of-mass linear velocity, angular velocity), both
 world frame. Ball-joint qpos quaternions (w first) are exposed as exp-maps; ball qvel is already the
-local angular velocity. Ball joints are unlimited, as in Newton's MJCF import: the hinges' per-axis
-ranges survive only as action bounds (`get_obj_dof_limits`).
+local angular velocity.
+
+Ball-joint limits (`ball_joint_limits`): "cone" limits each ball joint's rotation angle to the largest
+|bound| of its hinges' ranges (MuJoCo's ball limit, the same one the Newton engine sets), "none" leaves
+it unlimited; the per-axis ranges bound the actions either way (`get_obj_dof_limits`).
+
+pd_explicit: τ = kp (q* − q) − kd q̇ per actuator, recomputed before every substep between `mj_step1`
+(which computes the actuator lengths and velocities of the current state) and `mj_step2`. An actuator's
+length is the hinge angle or, for a ball joint with gear e_i, exp-map component i; its velocity is q̇ or
+the local angular velocity ω_i: the law the pos-mode actuators apply, with the damping explicit.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -41,10 +49,8 @@ import torch
 from mimickit.anim.kin_char_model import JointType, KinCharModel
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.mjcf_loader import compile_spec, load_mjcf_spec
-from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, ObjType
+from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, ObjType, ball_cone_angle
 from mimickit.util import torch_util as tu
-from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
 
 FLOOR_NAME = "floor"
 
@@ -156,8 +162,11 @@ def _zero_like(value: object) -> object:
     return np.zeros_like(value) if isinstance(value, np.ndarray) else 0.0
 
 
-def _adapt_object_spec(spec: mujoco.MjSpec, rec: _ObjRecord, kin: KinCharModel) -> dict[str, list[float]]:
-    """Make an asset's spec simulation-ready in place; returns per-axis armature of each new ball joint."""
+def _adapt_object_spec(
+    spec: mujoco.MjSpec, rec: _ObjRecord, kin: KinCharModel, limit_balls: bool
+) -> dict[str, list[float]]:
+    """Make an asset's spec simulation-ready in place; returns per-axis armature of each new ball joint.
+    With `limit_balls` every ball joint gets its cone limit (`ball_cone_angle`), else none."""
     for elements in (spec.actuators, spec.sensors, spec.keys):  # own motors go; keyframes no longer fit
         for e in list(elements):
             spec.delete(e)
@@ -177,9 +186,12 @@ def _adapt_object_spec(spec: mujoco.MjSpec, rec: _ObjRecord, kin: KinCharModel) 
     ball_armature: dict[str, list[float]] = {}
     for joint in kin.joints[1:]:
         body = spec.body(kin.body_names[joint.body_id])
-        if joint.type == JointType.SPHERICAL and len(body.joints) == 3:
-            ball_armature[joint.name] = [float(spec.joint(n).armature) for n in joint.mjcf_joints]
-            _hinges_to_ball(spec, body, joint.name, ball_armature[joint.name])
+        if joint.type == JointType.SPHERICAL:
+            if len(body.joints) == 3:
+                ball_armature[joint.name] = [float(spec.joint(n).armature) for n in joint.mjcf_joints]
+                _hinges_to_ball(spec, body, joint.name, ball_armature[joint.name])
+            cone = ball_cone_angle(joint.low, joint.high) if limit_balls else None
+            _set_ball_limit(body.joints[0], cone, spec.compiler.degree)
         for j in body.joints:  # the gains move into actuators: no passive springs left
             j.stiffness = _zero_like(j.stiffness)
             j.damping = _zero_like(j.damping)
@@ -196,13 +208,29 @@ def _adapt_object_spec(spec: mujoco.MjSpec, rec: _ObjRecord, kin: KinCharModel) 
 
 
 def _hinges_to_ball(spec: mujoco.MjSpec, body: mujoco.MjsBody, name: str, armature: list[float]) -> None:
-    """Replace a body's x/y/z hinge triplet by one unlimited ball joint (as Newton's MJCF import does)."""
-    for j in list(body.joints):
+    """Replace a body's x/y/z hinge triplet by one ball joint (as Newton's MJCF import does); its limit is
+    set by `_set_ball_limit`."""
+    hinges = list(body.joints)
+    # Limit softness from the z hinge: Newton's MuJoCo conversion maps a ball joint to its last DoF.
+    z = hinges[-1]
+    solref, solimp, margin = list(z.solref_limit), list(z.solimp_limit), float(z.margin)
+    for j in hinges:
         spec.delete(j)
     ball = body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_BALL)
-    ball.limited = mujoco.mjtLimited.mjLIMITED_FALSE
+    ball.solref_limit, ball.solimp_limit, ball.margin = solref, solimp, margin
     ball.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
     ball.armature = float(np.mean(armature))  # exact per-axis values are patched into the compiled model
+
+
+def _set_ball_limit(ball: mujoco.MjsJoint, cone: float | None, degree: bool) -> None:
+    """Limit a ball joint's rotation angle to `cone` (rad; MuJoCo's ball limit is this cone, range[1] with
+    range[0] = 0), or leave it unlimited for None. `degree`: the spec compiles angles in degrees (MuJoCo's
+    default when the MJCF does not say angle="radian", e.g. SMPL)."""
+    if cone is None:
+        ball.limited = mujoco.mjtLimited.mjLIMITED_FALSE
+        return
+    ball.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+    ball.range = [0.0, math.degrees(cone) if degree else cone]
 
 
 def _add_floor(scene: mujoco.MjSpec) -> None:
@@ -290,8 +318,6 @@ class MujocoEngine(Engine):
 
     def __init__(self, config: EngineConfig, num_envs: int, device: torch.device | str, visualize: bool = False):
         super().__init__(config, num_envs, device, visualize)
-        self._env_objs: list[list[_ObjRecord]] = []
-        self._start_poses: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per env, per obj: (pos[3], xyzw[4])
         self._kin_cache: dict[str, KinCharModel] = {}
         self.mj_model: mujoco.MjModel | None = None
         self.mj_datas: list[mujoco.MjData] = []
@@ -303,13 +329,8 @@ class MujocoEngine(Engine):
         return "mujoco"
 
     # ------------------------------------------------------------------ creation
-    def create_env(self) -> int:
-        env_id = len(self._env_objs)
-        if env_id >= self._num_envs:
-            raise MimicKitError(f"create_env: all {self._num_envs} envs already exist")
-        self._env_objs.append([])
-        self._start_poses.append([])
-        return env_id
+    def _sim_initialized(self) -> bool:
+        return self.mj_model is not None
 
     def create_obj(
         self,
@@ -325,27 +346,15 @@ class MujocoEngine(Engine):
         color: np.ndarray | None = None,
         disable_motors: bool = False,
     ) -> int:
-        if self.mj_model is not None:
-            raise MimicKitError("create_obj: the simulation is already initialized")
-        if not 0 <= env_id < len(self._env_objs):
-            raise MimicKitError(f"create_obj: env {env_id} was not created (call create_env first)")
-        path = str(resolve_data_path(asset_file))  # configs name assets as "data/assets/..."
-        if not Path(path).is_file():
-            raise MimicKitError(f"asset file not found: {path}")
+        path = self._check_new_obj(env_id, asset_file)
         rec = _ObjRecord(ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root,
                          None if color is None else tuple(float(c) for c in np.asarray(color).ravel()),
                          disable_motors)  # fmt: skip
-        pos = np.zeros(3) if start_pos is None else np.asarray(start_pos, dtype=np.float64).reshape(3)
-        rot = np.array([0.0, 0.0, 0.0, 1.0]) if start_rot is None else np.asarray(start_rot, np.float64).reshape(4)
-        self._env_objs[env_id].append(rec)
-        self._start_poses[env_id].append((pos, rot / np.linalg.norm(rot)))
-        return len(self._env_objs[env_id]) - 1
+        return self._add_obj(env_id, rec, start_pos, start_rot)
 
     def initialize_sim(self) -> None:
         objs = self._check_env_objects()
         self.mj_model, self._layouts = self._build_model(objs)
-        if self._config.control_mode == ControlMode.pd_explicit:
-            self._check_pd_explicit()
         m = self.mj_model
         self.mj_datas = [mujoco.MjData(m) for _ in range(self._num_envs)]
         self._views = {f: [getattr(d, f) for d in self.mj_datas] for f in _GATHERED_FIELDS}
@@ -354,6 +363,7 @@ class MujocoEngine(Engine):
         self._mocap_quat = np.zeros((self._num_envs, m.nmocap, 4))
         self._ctrl = np.zeros((self._num_envs, m.nu))
         self._pd_target = np.zeros((self._num_envs, m.nu))
+        self._act_kp, self._act_kd = self._actuator_gains()
         self._xfrc = np.zeros((self._num_envs, m.nbody, 6))
         self._force_envs = np.zeros(self._num_envs, dtype=bool)
         self._dirty = np.zeros(self._num_envs, dtype=bool)
@@ -365,17 +375,25 @@ class MujocoEngine(Engine):
             mujoco.mj_forward(m, d)
         self._gather(slice(None))
         self._refresh(slice(None))
+        if self._config.control_mode == ControlMode.pd_explicit:
+            self._check_explicit_damping()
 
-    def _check_env_objects(self) -> list[_ObjRecord]:
-        if len(self._env_objs) != self._num_envs:
-            raise MimicKitError(f"initialize_sim: {len(self._env_objs)} of {self._num_envs} envs were created")
-        objs = self._env_objs[0]
-        for e, env_objs in enumerate(self._env_objs):
-            if [o.signature() for o in env_objs] != [o.signature() for o in objs]:
-                raise MimicKitError(
-                    f"env {e} has different objects than env 0; the MuJoCo engine needs identical object lists"
-                )
-        return objs
+    def _check_explicit_damping(self) -> None:
+        """Warn when pd_explicit's damping is too stiff for the timestep (mass matrix of env 0's start state)."""
+        m, d = self.mj_model, self.mj_datas[0]
+        full = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, full)
+        for lay in self._layouts:
+            if len(lay.act_ids):
+                self._warn_explicit_damping(lay.kin, lay.kd, np.diag(full)[lay.dof_qvel])
+
+    def _actuator_gains(self) -> tuple[np.ndarray, np.ndarray]:
+        """(kp, kd) [nu] per actuator of the scene, as the control mode uses them (pd_explicit's gains)."""
+        kp, kd = np.zeros(self.mj_model.nu), np.zeros(self.mj_model.nu)
+        for lay in self._layouts:
+            if len(lay.act_ids):  # objects without motors have no actuators
+                kp[lay.act_ids], kd[lay.act_ids] = lay.kp, lay.kd
+        return kp, kd
 
     def _kin_model(self, asset_file: str) -> KinCharModel:
         if asset_file not in self._kin_cache:
@@ -392,7 +410,7 @@ class MujocoEngine(Engine):
         for i, rec in enumerate(objs):
             kin = self._kin_model(rec.asset_file)
             spec = load_mjcf_spec(rec.asset_file)
-            ball_armature.append(_adapt_object_spec(spec, rec, kin))
+            ball_armature.append(_adapt_object_spec(spec, rec, kin, cfg.ball_joint_limits == "cone"))
             prefix = f"{i}_{rec.name}/"
             scene.attach(spec, prefix=prefix, frame=scene.worldbody.add_frame())
             if not rec.enable_self_collisions:
@@ -498,14 +516,6 @@ class MujocoEngine(Engine):
         self._env_io = [(d, d.ctrl, self._ctrl[i]) for i, d in enumerate(self.mj_datas)]
         self._pool = ThreadPoolExecutor(max_workers=nthread - 1) if nthread > 1 else None
 
-    def _check_pd_explicit(self) -> None:
-        for lay in self._layouts:
-            if len(lay.ball_cols):
-                raise MimicKitError(
-                    f"control_mode pd_explicit supports joints with at most one DoF; '{lay.kin.source}' has "
-                    "spherical joints (use control_mode pos)"
-                )
-
     @property
     def num_threads(self) -> int:
         """Threads that step the envs (the calling thread included)."""
@@ -575,17 +585,18 @@ class MujocoEngine(Engine):
                 _update_kinematics(m, d)
 
     def _step_chunk_pd_explicit(self, rows: slice, nstep: int, first: bool, last: bool) -> None:
-        """Worker for pd_explicit: τ = kp (q* − q) − kd q̇ recomputed before every substep (hinges only)."""
-        m = self.mj_model
-        for i, (d, ctrl, _) in enumerate(self._env_io[rows], start=rows.start):
-            qpos, qvel = d.qpos, d.qvel
+        """Worker for pd_explicit: τ = kp (q* − q) − kd q̇ per actuator before every substep, from the actuator
+        lengths q and velocities q̇ that `mj_step1` computes for the current state (for a ball joint: exp-map
+        component and local angular velocity). The actuators' forcerange clips τ to ± the torque limit."""
+        m, kp, kd = self.mj_model, self._act_kp, self._act_kd
+        # mj_step2 integrates with Euler for RK4: there the full mj_step recomputes the forward pass.
+        finish = mujoco.mj_step if m.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else mujoco.mj_step2
+        for (d, ctrl, _), target in zip(self._env_io[rows], self._pd_target[rows], strict=True):
             for _ in range(nstep):
-                for lay in self._layouts:
-                    if len(lay.act_ids):
-                        q, qd = qpos[lay.hinge_qpos], qvel[lay.dof_qvel]
-                        # the actuators' forcerange clips τ to ± the torque limit
-                        ctrl[lay.act_ids] = lay.kp * (self._pd_target[i, lay.act_ids] - q) - lay.kd * qd
-                mujoco.mj_step(m, d)
+                mujoco.mj_step1(m, d)
+                np.multiply(kp, target - d.actuator_length, out=ctrl)
+                ctrl -= kd * d.actuator_velocity
+                finish(m, d)
             if last:
                 _update_kinematics(m, d)
 

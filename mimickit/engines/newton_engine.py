@@ -10,20 +10,23 @@ creates its MuJoCo actuators at construction.
 
 Differences from the reference Newton engine (its defects, spec §11.4, fixed here):
 * `disable_motors` is honoured: the object's DoFs get no actuator (JointTargetMode.NONE).
-* `pd_explicit` computes τ = kp (q* − q) − kd q̇ in torch on DoF-sized tensors (not on mixed q/qd warp
-  arrays), clipped to the torque limit, and applies it through `control.joint_f` every substep; like the
-  MuJoCo engine it accepts hinge-only characters.
+* `pd_explicit` computes τ = kp (q* − q) − kd q̇ in torch on DoF-sized tensors [N, D] (not on mixed q/qd
+  warp arrays): q holds hinge angles and ball-joint exp-maps, q̇ hinge rates and ball-joint local angular
+  velocities (the law of the MuJoCo engine's actuators). τ is clipped to the torque limit and applied
+  through `control.joint_f` before every substep.
 * Torque commands are clipped to the torque limit (Newton's EFFORT mode applies joint_f unclipped).
-Ball joints stay unlimited, as in the MuJoCo engine (both mirror Newton's MJCF import): the per-axis hinge
-ranges only bound actions. Enforcing them in one engine alone would make the two disagree.
+* Ball joints get the cone limit of `ball_joint_limits` (Newton's MuJoCo conversion makes every ball joint
+  unlimited): the same MuJoCo constraint as in the MuJoCo engine, see `_set_ball_limits`.
 
 State: the solver steps the state in place; after a control step the raw warp arrays (joint_q, joint_qd,
 body_q, body_qd, as zero-copy torch views) are converted into per-object torch buffers, which the
 getters return (they are refreshed in place, so they stay live). Newton already uses the framework's
 conventions: quaternions xyzw, free-joint and body linear velocities at the centre of mass in world
-frame, angular velocities in world frame, ball-joint velocities in the child frame. Ball-joint
-quaternions are exposed as exp-maps. Setters write joint_q/joint_qd and mark the state dirty; the next
-getter or step re-runs forward kinematics.
+frame, angular velocities in world frame. Two conversions remain for ball joints: quaternions are exposed
+as exp-maps, and Newton's ball joint_qd / joint_f are angular velocity / torque in the *parent* frame
+(SolverMuJoCo maps MuJoCo's qvel = r⁻¹ joint_qd, r the joint rotation), which the engine rotates into the
+child frame of spec §2.4 and the MuJoCo engine (dof_vel, torque commands, dof_forces). Setters write
+joint_q/joint_qd and mark the state dirty; the next getter or step re-runs forward kinematics.
 
 Fixed-root objects (`fix_root`) are welded where `create_obj` put them: root setters leave them there (the
 MuJoCo engine moves them as mocap bodies; the reference edits `joint_X_p` behind the solver's back).
@@ -35,8 +38,8 @@ the one counterpart, fed by the solver's CONTACT_F observable after the last sub
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
+import mujoco
 import numpy as np
 import torch
 
@@ -45,7 +48,6 @@ from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, ObjType
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
 
 try:  # an optional extra: the builder reports a missing install with the command that fixes it
     import warp as wp
@@ -95,6 +97,9 @@ class _ObjLayout:
     hinge_q: torch.Tensor  # [H] their joint_q columns
     ball_cols: torch.Tensor  # [K, 3] DoF columns of ball joints (exp-map components)
     ball_q: torch.Tensor  # [K, 4] their joint_q columns (quaternion xyzw)
+    ball_qd: torch.Tensor  # [K, 3] their joint_qd columns (parent-frame angular velocity)
+    ball_joints: list[int]  # [K] their Newton joint indices (world 0)
+    ball_cones: list[float | None]  # [K] their cone limits (rad), None = unlimited
     dof_qd: torch.Tensor  # [D] joint_qd column of every DoF
     actuated: bool
     kp: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [D] gains as used by the control mode
@@ -134,8 +139,6 @@ class NewtonEngine(Engine):
 
     def __init__(self, config: EngineConfig, num_envs: int, device: torch.device | str, visualize: bool = False):
         super().__init__(config, num_envs, device, visualize)
-        self._env_objs: list[list[_ObjRecord]] = []
-        self._start_poses: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per env, per obj: (pos, xyzw)
         self._kin_cache: dict[str, KinCharModel] = {}
         # warp runs on CUDA only when the torch device is CUDA; kernels otherwise compile for the CPU
         self._wp_device = "cuda:0" if self._device.type == "cuda" else "cpu"
@@ -146,13 +149,8 @@ class NewtonEngine(Engine):
         return "newton"
 
     # ------------------------------------------------------------------ creation
-    def create_env(self) -> int:
-        env_id = len(self._env_objs)
-        if env_id >= self._num_envs:
-            raise MimicKitError(f"create_env: all {self._num_envs} envs already exist")
-        self._env_objs.append([])
-        self._start_poses.append([])
-        return env_id
+    def _sim_initialized(self) -> bool:
+        return self.model is not None
 
     def create_obj(
         self,
@@ -168,55 +166,41 @@ class NewtonEngine(Engine):
         color: np.ndarray | None = None,
         disable_motors: bool = False,
     ) -> int:
-        if self.model is not None:
-            raise MimicKitError("create_obj: the simulation is already initialized")
-        if not 0 <= env_id < len(self._env_objs):
-            raise MimicKitError(f"create_obj: env {env_id} was not created (call create_env first)")
-        path = str(resolve_data_path(asset_file))
-        if not Path(path).is_file():
-            raise MimicKitError(f"asset file not found: {path}")
+        path = self._check_new_obj(env_id, asset_file)
         rec = _ObjRecord(ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root, disable_motors)
-        pos = np.zeros(3) if start_pos is None else np.asarray(start_pos, dtype=np.float64).reshape(3)
-        rot = np.array([0.0, 0.0, 0.0, 1.0]) if start_rot is None else np.asarray(start_rot, np.float64).reshape(4)
-        self._env_objs[env_id].append(rec)
-        self._start_poses[env_id].append((pos, rot / np.linalg.norm(rot)))
-        return len(self._env_objs[env_id]) - 1
+        return self._add_obj(env_id, rec, start_pos, start_rot)
 
     def initialize_sim(self) -> None:
         objs = self._check_env_objects()
-        if self._config.control_mode == ControlMode.pd_explicit:
-            self._check_pd_explicit(objs)
         self.model = self._build_model(objs)
         self._layouts = self._build_layouts(objs)
         self._set_gains(objs)  # before the solver: SolverMuJoCo builds its actuators from these
+        self._set_ball_limits()  # before the solver too: it copies the limits at construction
         self._float_ghosts(objs)
         self._build_solver()
+        self._enable_ball_limits()
         self._bind_state()
         self._place_start_poses()
         self._states = [_ObjState(self._num_envs, lay.num_bodies, lay.num_dofs, self._device) for lay in self._layouts]
         self._cmd = [torch.zeros(self._num_envs, lay.num_dofs, device=self._device) for lay in self._layouts]
+        self._tau = [torch.zeros(self._num_envs, lay.num_dofs, device=self._device) for lay in self._layouts]
+        self._gains = [self._torch_gains(lay) for lay in self._layouts]
         self._dirty = True
         self._refresh()
+        if self._config.control_mode == ControlMode.pd_explicit:
+            self._check_explicit_damping()
 
-    def _check_env_objects(self) -> list[_ObjRecord]:
-        if len(self._env_objs) != self._num_envs:
-            raise MimicKitError(f"initialize_sim: {len(self._env_objs)} of {self._num_envs} envs were created")
-        objs = self._env_objs[0]
-        for e, env_objs in enumerate(self._env_objs):
-            if [o.signature() for o in env_objs] != [o.signature() for o in objs]:
-                raise MimicKitError(
-                    f"env {e} has different objects than env 0; the Newton engine needs identical object lists"
-                )
-        return objs
-
-    def _check_pd_explicit(self, objs: list[_ObjRecord]) -> None:
-        for rec in objs:
-            kin = self._kin_model(rec.asset_file)
-            if any(j.type == JointType.SPHERICAL for j in kin.joints[1:]):
-                raise MimicKitError(
-                    f"control_mode pd_explicit supports joints with at most one DoF; '{rec.asset_file}' has "
-                    "spherical joints (use control_mode pos)"
-                )
+    def _check_explicit_damping(self) -> None:
+        """Warn when pd_explicit's damping is too stiff for the timestep (mass matrix of the solver's MuJoCo
+        template world in the model's initial pose)."""
+        m, d = self.solver.mj_model, self.solver.mj_data
+        full = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, full)
+        to_mj = {int(n): i for i, n in enumerate(self.solver.mjc_dof_to_newton_dof.numpy()[0]) if n >= 0}
+        for lay in self._layouts:
+            if lay.actuated:
+                rows = [to_mj[int(c)] for c in lay.dof_qd]
+                self._warn_explicit_damping(lay.kin, lay.kd, full[rows, rows])
 
     def _kin_model(self, asset_file: str) -> KinCharModel:
         if asset_file not in self._kin_cache:
@@ -279,7 +263,8 @@ class NewtonEngine(Engine):
             names = [str(s).rsplit("/", 1)[-1] for s in m.body_label[body0 : body0 + nb]]
             if names != kin.body_names:
                 raise MimicKitError(f"{rec.asset_file}: Newton body order {names} differs from {kin.body_names}")
-            hinge_cols, hinge_q, ball_cols, ball_q, dof_qd = [], [], [], [], []
+            hinge_cols, hinge_q, ball_cols, ball_q, ball_qd, ball_joints, ball_cones = [], [], [], [], [], [], []
+            dof_qd = []
             has_dofs = kin.get_dof_size() > 0
             actuated = self._config.control_mode != ControlMode.none and not rec.disable_motors and has_dofs
             for joint in kin.joints[1:]:
@@ -295,6 +280,9 @@ class NewtonEngine(Engine):
                 else:
                     ball_cols.append([joint.dof_idx + k for k in range(3)])
                     ball_q.append([q0 + k for k in range(4)])
+                    ball_qd.append([qd0 + k for k in range(3)])
+                    ball_joints.append(nj)
+                    ball_cones.append(self._ball_cone(joint.low, joint.high))
                     dof_qd += [qd0 + k for k in range(3)]
             lay = _ObjLayout(
                 kin=kin,
@@ -305,6 +293,9 @@ class NewtonEngine(Engine):
                 hinge_q=torch.tensor(hinge_q, dtype=torch.long),
                 ball_cols=torch.tensor(ball_cols, dtype=torch.long).reshape(-1, 3),
                 ball_q=torch.tensor(ball_q, dtype=torch.long).reshape(-1, 4),
+                ball_qd=torch.tensor(ball_qd, dtype=torch.long).reshape(-1, 3),
+                ball_joints=ball_joints,
+                ball_cones=ball_cones,
                 dof_qd=torch.tensor(dof_qd, dtype=torch.long),
                 actuated=actuated,
             )
@@ -351,6 +342,43 @@ class NewtonEngine(Engine):
         # The MJCF stiffness/damping are the PD gains (spec §2.4), not springs: zero the passive ones.
         m.joint_stiffness.zero_()
         m.joint_damping.zero_()
+
+    def _set_ball_limits(self) -> None:
+        """Cone limits, step 1 (before the solver): SolverMuJoCo copies a ball joint's DoF limits into its
+        MuJoCo jnt_range, whose cone angle is max(range), at construction and on every later
+        `notify_model_changed`. Each DoF of a limited ball joint gets ±cone, so that max is the cone."""
+        lower, upper = self.model.joint_limit_lower.numpy(), self.model.joint_limit_upper.numpy()
+        world_offsets = self._qd_per_world * np.arange(self._num_envs)[:, None]
+        for lay in self._layouts:
+            for cols, cone in zip(lay.ball_qd.numpy(), lay.ball_cones, strict=True):
+                if cone is not None:
+                    rows = (cols[None] + world_offsets).ravel()
+                    lower[rows], upper[rows] = -cone, cone
+        self.model.joint_limit_lower.assign(lower)
+        self.model.joint_limit_upper.assign(upper)
+
+    def _enable_ball_limits(self) -> None:
+        """Cone limits, step 2 (after the solver): SolverMuJoCo compiles every ball joint with limited=False.
+        Flag the limited ones in its MuJoCo model and in the MuJoCo-Warp copy, whose ball-limit kernel runs
+        over the index list `jnt_limited_ball_adr` (built from jnt_limited when the model was uploaded)."""
+        cones = {j: c for lay in self._layouts for j, c in zip(lay.ball_joints, lay.ball_cones, strict=True)}
+        mj_to_newton = self.solver.mjc_jnt_to_newton_jnt.numpy()[0]  # MuJoCo joint → Newton joint (world 0)
+        ids = [i for i, j in enumerate(mj_to_newton) if cones.get(int(j)) is not None]
+        if not ids:
+            return
+        mj, mjw = self.solver.mj_model, self.solver.mjw_model
+        mj.jnt_limited[ids] = 1
+        mj.jnt_range[ids] = [(0.0, cones[int(mj_to_newton[i])]) for i in ids]
+        limited_balls = np.flatnonzero(mj.jnt_limited & (mj.jnt_type == mujoco.mjtJoint.mjJNT_BALL))
+        device = mjw.jnt_limited.device
+        mjw.jnt_limited = wp.array(mj.jnt_limited.astype(np.int32), dtype=wp.int32, device=device)
+        mjw.jnt_limited_ball_adr = wp.array(limited_balls.astype(np.int32), dtype=wp.int32, device=device)
+
+    def _torch_gains(self, lay: _ObjLayout) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(kp, kd, torque limit) [D] of an object as float tensors on the env device."""
+        arrays = (lay.kp, lay.kd, lay.kin.dof_array("torque_limit"))
+        kp, kd, limit = (torch.as_tensor(a, dtype=torch.float32, device=self._device) for a in arrays)
+        return kp, kd, limit
 
     def _float_ghosts(self, objs: list[_ObjRecord]) -> None:
         """Visual objects get MuJoCo gravity compensation (as in the MuJoCo engine): a ghost stays where the
@@ -452,8 +480,9 @@ class NewtonEngine(Engine):
         elif mode == ControlMode.vel:
             self._target_qd[:, lay.dof_qd] = value
         elif mode == ControlMode.torque:
-            limit = torch.as_tensor(lay.kin.dof_array("torque_limit"), dtype=torch.float32, device=self._device)
-            self._joint_f[:, lay.dof_qd] = torch.maximum(torch.minimum(value, limit), -limit)
+            limit = self._gains[obj_id][2]
+            self._tau[obj_id][:] = torch.maximum(torch.minimum(value, limit), -limit)
+            self._write_joint_f(lay, self._tau[obj_id])
 
     def step(self) -> None:
         self._sync()
@@ -465,6 +494,8 @@ class NewtonEngine(Engine):
                 self._bf[..., :3] = self._force_buf
             if self._config.control_mode == ControlMode.pd_explicit:
                 self._apply_explicit_pd()
+            elif self._config.control_mode == ControlMode.torque:
+                self._rotate_ball_torques()  # a child-frame torque turns with the joint
             # Contact forces are exported only on the last substep: that is all the sensor reads.
             obs = self.observables if i == nsub - 1 else None
             self.solver.step(self.state, self.state, self.control, self.contacts, dt, observables=obs)
@@ -477,14 +508,52 @@ class NewtonEngine(Engine):
         self._sim_time += self.get_timestep()
 
     def _apply_explicit_pd(self) -> None:
-        """τ = kp (q* − q) − kd q̇ per hinge DoF, clipped to ± the torque limit, into control.joint_f."""
-        for lay, cmd in zip(self._layouts, self._cmd, strict=True):
+        """τ = kp (q* − q) − kd q̇ on the [N, D] DoF vectors of the current state (ball joints: exp-map and
+        local angular velocity), clipped to ± the torque limit, into control.joint_f."""
+        for o, (lay, cmd) in enumerate(zip(self._layouts, self._cmd, strict=True)):
             if not lay.actuated:
                 continue
-            kp, kd, limit = (torch.as_tensor(a, dtype=torch.float32, device=self._device) for a in
-                             (lay.kp, lay.kd, lay.kin.dof_array("torque_limit")))  # fmt: skip
-            tau = kp * (cmd - self._jq[:, lay.hinge_q]) - kd * self._jqd[:, lay.dof_qd]
-            self._joint_f[:, lay.dof_qd] = torch.maximum(torch.minimum(tau, limit), -limit)
+            kp, kd, limit = self._gains[o]
+            tau = kp * (cmd - self._dof_pos(lay)) - kd * self._dof_vel(lay)
+            self._tau[o][:] = torch.maximum(torch.minimum(tau, limit), -limit)
+            self._write_joint_f(lay, self._tau[o])
+
+    def _rotate_ball_torques(self) -> None:
+        """Re-express the torque-mode ball-joint torques in the parent frame of the joints' current rotation."""
+        for lay, tau in zip(self._layouts, self._tau, strict=True):
+            if lay.actuated and len(lay.ball_cols):
+                self._write_joint_f(lay, tau)
+
+    def _write_joint_f(self, lay: _ObjLayout, tau: torch.Tensor) -> None:
+        """Local-frame DoF torques [N, D] into control.joint_f (ball joints: rotated into Newton's parent frame)."""
+        self._joint_f[:, lay.dof_qd] = tau
+        if len(lay.ball_cols):
+            self._joint_f[:, lay.ball_qd] = tu.quat_rotate(self._ball_rot(lay), tau[:, lay.ball_cols])
+
+    # ------------------------------------------------------------------ DoF coordinates of the warp state
+    def _ball_rot(self, lay: _ObjLayout, ids: torch.Tensor | slice = slice(None)) -> torch.Tensor:
+        """[n, K, 4] current ball-joint rotations (xyzw, normalised) of env rows `ids`."""
+        return tu.quat_normalize(self._jq[ids][:, lay.ball_q])
+
+    def _dof_pos(self, lay: _ObjLayout) -> torch.Tensor:
+        """[N, D] hinge angles and ball-joint exp-maps of the current joint_q."""
+        pos = torch.empty(self._num_envs, lay.num_dofs, device=self._device)
+        pos[:, lay.hinge_cols] = self._jq[:, lay.hinge_q]
+        if len(lay.ball_cols):
+            pos[:, lay.ball_cols] = tu.quat_to_exp_map(self._jq[:, lay.ball_q])
+        return pos
+
+    def _dof_vel(self, lay: _ObjLayout, ids: torch.Tensor | slice = slice(None)) -> torch.Tensor:
+        """[n, D] DoF velocities of env rows `ids`: hinge rates, ball-joint angular velocities in the child
+        frame (Newton's joint_qd holds them in the parent frame)."""
+        vel = self._jqd[ids][:, lay.dof_qd]
+        if len(lay.ball_cols):
+            vel[:, lay.ball_cols] = tu.quat_rotate_inverse(self._ball_rot(lay, ids), self._jqd[ids][:, lay.ball_qd])
+        return vel
+
+    def _write_ball_vel(self, lay: _ObjLayout, ids: torch.Tensor, local: torch.Tensor) -> None:
+        """Child-frame ball-joint angular velocities [n, K, 3] of env rows `ids` into joint_qd (parent frame)."""
+        self._jqd[ids[:, None, None], lay.ball_qd[None]] = tu.quat_rotate(self._ball_rot(lay, ids), local)
 
     # ------------------------------------------------------------------ state sync
     def _sync(self) -> None:
@@ -503,10 +572,8 @@ class NewtonEngine(Engine):
             t["body_vel"].copy_(self._bqd[:, b, :3])
             t["body_ang_vel"].copy_(self._bqd[:, b, 3:])
             if lay.num_dofs:
-                t["dof_pos"][:, lay.hinge_cols] = self._jq[:, lay.hinge_q]
-                if len(lay.ball_cols):
-                    t["dof_pos"][:, lay.ball_cols] = tu.quat_to_exp_map(self._jq[:, lay.ball_q])
-                t["dof_vel"].copy_(self._jqd[:, lay.dof_qd])
+                t["dof_pos"].copy_(self._dof_pos(lay))
+                t["dof_vel"].copy_(self._dof_vel(lay))
         if contacts and self.sensor is not None:
             ground = wp.to_torch(self.sensor.force_matrix)[:, 0]  # [rows, 3]: the ground is counterpart 0
             total = wp.to_torch(self.sensor.total_force)
@@ -539,12 +606,14 @@ class NewtonEngine(Engine):
 
     def get_dof_forces(self, obj_id: int) -> torch.Tensor:
         """[N, D] generalized actuator forces of the last substep (MuJoCo's qfrc_actuator), or the explicit
-        joint torques applied in torque / pd_explicit mode."""
+        joint torques applied in torque / pd_explicit mode; ball joints' in their child frame."""
         lay, t = self._layouts[obj_id], self._get(obj_id, "dof_forces")
         if self._config.control_mode in (ControlMode.torque, ControlMode.pd_explicit):
-            t.copy_(self._joint_f[:, lay.dof_qd])
-        else:
-            t.copy_(self._qfrc[:, lay.dof_qd])
+            t.copy_(self._tau[obj_id])
+            return t
+        t.copy_(self._qfrc[:, lay.dof_qd])
+        if len(lay.ball_cols):  # Newton reports them in the parent frame, like joint_f
+            t[:, lay.ball_cols] = tu.quat_rotate_inverse(self._ball_rot(lay), self._qfrc[:, lay.ball_qd])
         return t
 
     def get_body_pos(self, obj_id: int) -> torch.Tensor:
@@ -606,12 +675,18 @@ class NewtonEngine(Engine):
         if len(lay.hinge_cols):
             self._jq[ids[:, None], lay.hinge_q[None]] = dof[:, lay.hinge_cols]
         if len(lay.ball_cols):
+            # The child-frame velocities stay as they were (as in MuJoCo), in whichever order the setters run.
+            local = self._dof_vel(lay, ids)[:, lay.ball_cols]
             self._jq[ids[:, None, None], lay.ball_q[None]] = tu.exp_map_to_quat(dof[:, lay.ball_cols])
+            self._write_ball_vel(lay, ids, local)
         self._dirty = True
 
     def set_dof_vel(self, env_ids: EnvIds, obj_id: int, dof_vel: torch.Tensor | float) -> None:
         ids, lay = self._ids(env_ids), self._layouts[obj_id]
-        self._jqd[ids[:, None], lay.dof_qd[None]] = self._rows(dof_vel, len(ids), lay.num_dofs)
+        vel = self._rows(dof_vel, len(ids), lay.num_dofs)
+        self._jqd[ids[:, None], lay.dof_qd[None]] = vel
+        if len(lay.ball_cols):
+            self._write_ball_vel(lay, ids, vel[:, lay.ball_cols])
         self._dirty = True
 
     def _set_body_buffer(self, env_ids: EnvIds, obj_id: int, key: str, value: torch.Tensor | float) -> None:

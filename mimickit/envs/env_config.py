@@ -20,7 +20,7 @@ from mimickit.util.errors import MimicKitError
 _ISAAC_ONLY_KEYS = {"sim", "plane", "physx"}
 # Keys that describe the task rather than one engine's physics: kept when an env yaml's engine block
 # names another engine than the one chosen.
-_PORTABLE_ENGINE_KEYS = {"control_mode", "control_freq", "env_spacing", "ground_contact_height"}
+_PORTABLE_ENGINE_KEYS = {"control_mode", "control_freq", "env_spacing", "ground_contact_height", "ball_joint_limits"}
 
 
 class SimEnvConfig(ConfigModel):
