@@ -96,17 +96,20 @@ def test_sigterm_mid_run_saves_a_loadable_checkpoint_and_exits_zero(tmp_path: Pa
     assert json.loads(r.stdout.strip().splitlines()[-1])["episodes"] >= 2
 
 
+def shipped_model_test(name: str, *extra: str) -> dict:
+    """`mimickit test --json` of data/models/{name}.pt with its sidecar arg file (4 envs, 4 episodes)."""
+    r = mimickit(
+        "test", "--arg_file", str(PROJECT_ROOT / f"data/models/{name}.txt"), "--num_envs", "4",
+        "--model_file", str(PROJECT_ROOT / f"data/models/{name}.pt"), "--test_episodes", "4", "--json", *extra,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
 def test_shipped_walk_model_walks_the_whole_clip(test_data: Path) -> None:
     """The shipped walk policy, tested as its sidecar arg file says, keeps every episode to the time
     limit (an untrained policy falls within ~1 s) and tracks the clip's bodies within 0.1 m."""
-    sidecar = PROJECT_ROOT / "data/models/deepmimic_humanoid_walk_model.txt"
-    r = mimickit(
-        "test", "--arg_file", str(sidecar), "--data_dir", str(test_data), "--num_envs", "4",
-        "--model_file", str(PROJECT_ROOT / "data/models/deepmimic_humanoid_walk_model.pt"),
-        "--test_episodes", "4", "--json",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr[-3000:]
-    out = json.loads(r.stdout.strip().splitlines()[-1])
+    out = shipped_model_test("deepmimic_humanoid_walk_model", "--data_dir", str(test_data))
     assert out["mean_episode_length"] >= 0.9 * 300, out
     assert out["tracking"]["pos_err_m"] < 0.1, out
 
@@ -114,13 +117,6 @@ def test_shipped_walk_model_walks_the_whole_clip(test_data: Path) -> None:
 def test_shipped_demo_model_squats_the_whole_episode() -> None:
     """The shipped demo policy (no MimicKit data needed), tested as its sidecar arg file says, keeps every
     episode to the time limit (the previous demo policy fell after ~3 s, PD tracking alone at 2.8 s)."""
-    sidecar = PROJECT_ROOT / "data/models/deepmimic_humanoid_demo_model.txt"
-    r = mimickit(
-        "test", "--arg_file", str(sidecar), "--num_envs", "4",
-        "--model_file", str(PROJECT_ROOT / "data/models/deepmimic_humanoid_demo_model.pt"),
-        "--test_episodes", "4", "--json",
-    )  # fmt: skip
-    assert r.returncode == 0, r.stderr[-3000:]
-    out = json.loads(r.stdout.strip().splitlines()[-1])
+    out = shipped_model_test("deepmimic_humanoid_demo_model")
     assert out["mean_episode_length"] >= 0.9 * 300, out
     assert out["tracking"]["pos_err_m"] < 0.2, out
