@@ -45,7 +45,7 @@ PRESETS: dict[str, tuple[str, list[str]]] = {
         "add_humanoid_walk_args.txt",
         ["tracking.body_pos_err", "tracking.dof_vel_err", "reward_terms.disc", "disc_pos_acc", "disc_neg_acc"],
     ),
-    "location": ("amp_location_humanoid_args.txt", ["tar_reached_frac", "tar_episodes", "reward_terms.task"]),
+    "location": ("amp_location_humanoid_cpu_args.txt", ["tar_reached_frac", "tar_episodes", "reward_terms.task"]),
     "ase": ("ase_humanoid_args.txt", ["reward_terms.disc", "reward_terms.enc", "diversity_loss"]),
 }
 
