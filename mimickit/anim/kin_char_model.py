@@ -179,11 +179,15 @@ class KinCharModel:
         pos[..., 0, :] = root_pos
         rot[..., 0, :] = root_rot
         # Bodies of one tree depth depend only on shallower ones: one batched update per depth level.
-        local_rot = tu.quat_mul(self.local_rot[1:].to(joint_rot), joint_rot)  # [..., J-1, 4]
-        for ids, parents in self._fk_levels:
+        local_rot, levels = self._fk_local_rot, self._fk_levels
+        if pos.dtype != local_rot.dtype:  # e.g. float64 callers: the precomputed float32 constants converted
+            local_rot = local_rot.to(pos.dtype)
+            levels = [(ids, parents, joints, offset.to(pos.dtype)) for ids, parents, joints, offset in levels]
+        local_rot = tu.quat_mul(local_rot, joint_rot)  # [..., J-1, 4]
+        for ids, parents, joints, offset in levels:
             parent_rot = rot[..., parents, :]
-            pos[..., ids, :] = pos[..., parents, :] + tu.quat_rotate(parent_rot, self._fk_local_pos[ids].to(pos))
-            rot[..., ids, :] = tu.quat_mul(parent_rot, local_rot[..., ids - 1, :])
+            pos[..., ids, :] = pos[..., parents, :] + tu.quat_rotate(parent_rot, offset)
+            rot[..., ids, :] = tu.quat_mul(parent_rot, local_rot[..., joints, :])
         return pos, rot
 
     def compute_dof_vel(self, rot0: torch.Tensor, rot1: torch.Tensor, dt: float) -> torch.Tensor:
@@ -229,13 +233,10 @@ class KinCharModel:
         depth = [0] * len(self.parent_ids)
         for j in range(1, len(self.parent_ids)):
             depth[j] = depth[self.parent_ids[j]] + 1
-        self._fk_levels = []
+        # Per depth level: body ids, their parents, their joints (body id - 1) and local offsets [L, 3].
+        self._fk_levels: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]] = []
         for level in range(1, max(depth, default=0) + 1):
-            ids = [j for j, d in enumerate(depth) if d == level]
-            self._fk_levels.append(
-                (
-                    torch.tensor(ids, dtype=torch.long, device=dev),
-                    torch.tensor([self.parent_ids[j] for j in ids], dtype=torch.long, device=dev),
-                )
-            )
-        self._fk_local_pos = self.local_pos
+            ids = torch.tensor([j for j, d in enumerate(depth) if d == level], dtype=torch.long, device=dev)
+            parents = torch.tensor([self.parent_ids[j] for j in ids.tolist()], dtype=torch.long, device=dev)
+            self._fk_levels.append((ids, parents, ids - 1, self.local_pos[ids]))
+        self._fk_local_rot = self.local_rot[1:]

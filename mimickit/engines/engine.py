@@ -419,6 +419,22 @@ class Engine(abc.ABC):
     def set_root_ang_vel(self, env_ids: EnvIds, obj_id: int, root_ang_vel: torch.Tensor | float) -> None:
         """root_ang_vel broadcastable to [n, 3], world frame."""
 
+    def set_root_state(
+        self,
+        env_ids: EnvIds,
+        obj_id: int,
+        root_pos: torch.Tensor | float,
+        root_rot: torch.Tensor | float,
+        root_vel: torch.Tensor | float,
+        root_ang_vel: torch.Tensor | float,
+    ) -> None:
+        """The four root setters in one call: what a reset does. An engine that stores velocities in
+        another frame overrides it to convert once instead of once per setter."""
+        self.set_root_pos(env_ids, obj_id, root_pos)
+        self.set_root_rot(env_ids, obj_id, root_rot)
+        self.set_root_vel(env_ids, obj_id, root_vel)
+        self.set_root_ang_vel(env_ids, obj_id, root_ang_vel)
+
     @abc.abstractmethod
     def set_dof_pos(self, env_ids: EnvIds, obj_id: int, dof_pos: torch.Tensor | float) -> None:
         """dof_pos broadcastable to [n, D]."""

@@ -779,26 +779,49 @@ class MujocoEngine(Engine):
         self._xfrc[ids, lay.body_ids[body_id], :3] = _rows(forces, len(ids), 3)
         self._force_envs[ids] = True
 
+    def set_root_state(
+        self,
+        env_ids: EnvIds,
+        obj_id: int,
+        root_pos: torch.Tensor | float,
+        root_rot: torch.Tensor | float,
+        root_vel: torch.Tensor | float,
+        root_ang_vel: torch.Tensor | float,
+    ) -> None:
+        """All four at once: the velocities are converted to free-joint qvel once, with the new rotation."""
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        if lay.root_qpos < 0:
+            self.set_root_pos(ids, obj_id, root_pos)
+            self.set_root_rot(ids, obj_id, root_rot)
+            return
+        n, qpos = len(ids), self._host["qpos"]
+        rot = _rows(root_rot, n, 4)
+        qpos[ids, lay.root_qpos : lay.root_qpos + 3] = _rows(root_pos, n, 3)
+        qpos[ids, lay.root_qpos + 3 : lay.root_qpos + 7] = rot[:, [3, 0, 1, 2]] / np.linalg.norm(
+            rot, axis=-1, keepdims=True
+        )
+        self._write_root_vel(ids, lay, _rows(root_vel, n, 3), _rows(root_ang_vel, n, 3))
+        self._dirty[ids] = True
+
+    def _root_rot_wxyz(self, ids: np.ndarray, lay: _ObjLayout) -> np.ndarray:
+        q = self._host["qpos"][ids, lay.root_qpos + 3 : lay.root_qpos + 7]
+        return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
     def _root_vel_world(self, ids: np.ndarray, lay: _ObjLayout) -> tuple[np.ndarray, np.ndarray]:
         """Current root (COM velocity, angular velocity), world frame, [n, 3] each, from the stacked qvel."""
-        q = torch.from_numpy(self._host["qpos"][ids, lay.root_qpos + 3 : lay.root_qpos + 7])
-        qv = torch.from_numpy(self._host["qvel"][ids, lay.root_qvel : lay.root_qvel + 6])
-        rot = tu.quat_normalize(tu.quat_from_wxyz(q))
-        ang_vel = tu.quat_rotate(rot, qv[:, 3:])
-        com = tu.quat_rotate(rot, torch.from_numpy(lay.root_ipos).expand_as(ang_vel))
-        vel = qv[:, :3] + torch.cross(ang_vel, com, dim=-1)
-        return vel.numpy(), ang_vel.numpy()
+        rot = self._root_rot_wxyz(ids, lay)
+        qv = self._host["qvel"][ids, lay.root_qvel : lay.root_qvel + 6]
+        ang_vel = _rotate_wxyz(rot, qv[:, 3:])
+        vel = qv[:, :3] + np.cross(ang_vel, _rotate_wxyz(rot, lay.root_ipos))
+        return vel, ang_vel
 
     def _write_root_vel(self, ids: np.ndarray, lay: _ObjLayout, vel: np.ndarray, ang_vel: np.ndarray) -> None:
         """Store world-frame (COM velocity, angular velocity) [n, 3] as MuJoCo free-joint qvel."""
-        q = torch.from_numpy(self._host["qpos"][ids, lay.root_qpos + 3 : lay.root_qpos + 7])
-        rot = tu.quat_normalize(tu.quat_from_wxyz(q))
-        w = torch.from_numpy(np.ascontiguousarray(ang_vel, dtype=np.float64))
-        com = tu.quat_rotate(rot, torch.from_numpy(lay.root_ipos).expand_as(w))
-        origin_vel = torch.from_numpy(np.ascontiguousarray(vel, dtype=np.float64)) - torch.cross(w, com, dim=-1)
+        rot = self._root_rot_wxyz(ids, lay)
         qvel = self._host["qvel"]
-        qvel[ids, lay.root_qvel : lay.root_qvel + 3] = origin_vel.numpy()
-        qvel[ids, lay.root_qvel + 3 : lay.root_qvel + 6] = tu.quat_rotate_inverse(rot, w).numpy()
+        qvel[ids, lay.root_qvel : lay.root_qvel + 3] = vel - np.cross(ang_vel, _rotate_wxyz(rot, lay.root_ipos))
+        inv = rot * np.array([1.0, -1.0, -1.0, -1.0])
+        qvel[ids, lay.root_qvel + 3 : lay.root_qvel + 6] = _rotate_wxyz(inv, ang_vel)
 
     def _env_ids(self, env_ids: EnvIds) -> np.ndarray:
         if env_ids is None:
@@ -900,6 +923,13 @@ def _quat_wxyz_to_exp_map(q: np.ndarray) -> np.ndarray:
     angle = 2.0 * np.arctan2(sin_half, q[..., :1])
     small = sin_half <= 1e-5
     return np.where(small, 0.0, v * (angle / np.where(small, 1.0, sin_half)))
+
+
+def _rotate_wxyz(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate v [n, 3] (or one [3]) by unit quaternions q [n, 4] (w first)."""
+    w, u = q[:, :1], q[:, 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
 
 
 def _to_numpy(x: object) -> np.ndarray:

@@ -100,10 +100,7 @@ class CharEnv(SimEnv):
     def _reset_char(self, env_ids: torch.Tensor) -> None:
         n = len(env_ids)
         e, c = self._engine, self._char_id
-        e.set_root_pos(env_ids, c, self._init_root_pos.expand(n, -1))
-        e.set_root_rot(env_ids, c, self._init_root_rot.expand(n, -1))
-        e.set_root_vel(env_ids, c, 0.0)
-        e.set_root_ang_vel(env_ids, c, 0.0)
+        e.set_root_state(env_ids, c, self._init_root_pos.expand(n, -1), self._init_root_rot.expand(n, -1), 0.0, 0.0)
         e.set_dof_pos(env_ids, c, self._init_dof_pos.expand(n, -1))
         e.set_dof_vel(env_ids, c, 0.0)
 
@@ -113,13 +110,15 @@ class CharEnv(SimEnv):
 
     def _char_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """The character's live state from the engine (plus `joint_rot`, the DoFs as local joint
-        rotations), optionally for a subset of envs. The all-env state is computed once per step while
-        step() only reads the sim; callers get their own dict and must not write into its tensors."""
-        if env_ids is None and self._state_frozen:
-            if "char" not in self._state_cache:
-                self._state_cache["char"] = self._read_char_state(None)
-            return dict(self._state_cache["char"])
-        return self._read_char_state(env_ids)
+        rotations), optionally for a subset of envs. While step() or reset() only reads the sim, the state
+        of the envs asked for (all, or the one env_ids tensor a reset passes around) is computed once;
+        callers get their own dict and must not write into its tensors."""
+        if not self._state_frozen:
+            return self._read_char_state(env_ids)
+        key = ("char", None if env_ids is None else id(env_ids))
+        if key not in self._state_cache:  # the entry keeps env_ids alive, so its id is not reused meanwhile
+            self._state_cache[key] = (env_ids, self._read_char_state(env_ids))
+        return dict(self._state_cache[key][1])
 
     def _read_char_state(self, env_ids: torch.Tensor | None) -> dict[str, torch.Tensor]:
         e, c = self._engine, self._char_id

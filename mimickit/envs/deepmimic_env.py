@@ -160,10 +160,9 @@ class DeepMimicEnv(CharEnv):
 
     def _pose_ref_char(self, env_ids: torch.Tensor) -> None:
         e, c = self._engine, self._ref_char_id
-        e.set_root_pos(env_ids, c, self._ref["root_pos"][env_ids] + self._ref_char_offset)
-        e.set_root_rot(env_ids, c, self._ref["root_rot"][env_ids])
-        e.set_root_vel(env_ids, c, 0.0)
-        e.set_root_ang_vel(env_ids, c, 0.0)
+        e.set_root_state(
+            env_ids, c, self._ref["root_pos"][env_ids] + self._ref_char_offset, self._ref["root_rot"][env_ids], 0.0, 0.0
+        )
         e.set_dof_pos(env_ids, c, self._ref["dof_pos"][env_ids])
         e.set_dof_vel(env_ids, c, 0.0)
 
@@ -176,10 +175,10 @@ class DeepMimicEnv(CharEnv):
         self._motion_time_offsets[env_ids] = times
         self._eval_ref(env_ids, times)
         e, c, ref = self._engine, self._char_id, self._ref
-        e.set_root_pos(env_ids, c, ref["root_pos"][env_ids])
-        e.set_root_rot(env_ids, c, ref["root_rot"][env_ids])
-        e.set_root_vel(env_ids, c, ref["root_vel"][env_ids])
-        e.set_root_ang_vel(env_ids, c, ref["root_ang_vel"][env_ids])
+        e.set_root_state(
+            env_ids, c, ref["root_pos"][env_ids], ref["root_rot"][env_ids], ref["root_vel"][env_ids],
+            ref["root_ang_vel"][env_ids],
+        )  # fmt: skip
         e.set_dof_pos(env_ids, c, ref["dof_pos"][env_ids])
         e.set_dof_vel(env_ids, c, ref["dof_vel"][env_ids])
         if self._enable_ref_char:

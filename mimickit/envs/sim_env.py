@@ -7,6 +7,8 @@ action space → sim tensors → data buffers (reward, done, timestep, time, obs
 from __future__ import annotations
 
 import abc
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import torch
@@ -90,13 +92,18 @@ class SimEnv(BaseEnv):
         if env_ids is None:
             env_ids = torch.arange(self.num_envs, device=self.device)
         if len(env_ids) > 0:
-            with self.profiler.phase("reset"):
+            with _one_torch_thread(), self.profiler.phase("reset"):
                 self._reset_envs(env_ids)
-                self._obs_buf[env_ids] = self._compute_obs(env_ids)
-                self._update_info(env_ids)
+                with self._frozen_state():
+                    self._obs_buf[env_ids] = self._compute_obs(env_ids)
+                    self._update_info(env_ids)
         return self._obs_buf, self._info
 
     def step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        with _one_torch_thread():
+            return self._step(action)
+
+    def _step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         with self.profiler.phase("action"):
             self._apply_action(action)
         with self.profiler.phase("physics"):
@@ -104,19 +111,24 @@ class SimEnv(BaseEnv):
         with self.profiler.phase("task"):
             self._update_time()
             self._update_misc()
-        # Observation, info, reward and done only read the sim: within them a state read may be cached.
-        self._state_frozen = True
-        try:
+        with self._frozen_state():
             with self.profiler.phase("observation"):
                 self._obs_buf[:] = self._compute_obs()
             with self.profiler.phase("reward_done"):
                 self._update_info()
                 self._update_reward()
                 self._update_done()
+        return self._obs_buf, self._reward_buf, self._done_buf, self._info
+
+    @contextmanager
+    def _frozen_state(self) -> Iterator[None]:
+        """Observation, info, reward and done only read the sim: within them a state read may be cached."""
+        self._state_frozen = True
+        try:
+            yield
         finally:
             self._state_frozen = False
             self._state_cache.clear()
-        return self._obs_buf, self._reward_buf, self._done_buf, self._info
 
     # ------------------------------------------------------------- internals
     def _reset_envs(self, env_ids: torch.Tensor) -> None:
@@ -146,3 +158,19 @@ class SimEnv(BaseEnv):
     def _update_done(self) -> None:
         timeout = self._time_buf >= self._episode_length
         self._done_buf[:] = torch.where(timeout, int(DoneFlags.TIME), int(DoneFlags.NULL))
+
+
+@contextmanager
+def _one_torch_thread() -> Iterator[None]:
+    """Run env work with one torch intra-op thread. Its tensors are small ([N, ...] per env): a second
+    thread buys nothing but a fork/join per op, and afterwards spins on the core that a MuJoCo worker
+    needs. The caller's thread count (the agent's updates use all cores) is restored on exit."""
+    n = torch.get_num_threads()
+    if n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)

@@ -53,10 +53,8 @@ class TaskLocationEnv(AMPTaskEnv):
 
     def _place_markers(self, env_ids: torch.Tensor) -> None:
         e, m = self._engine, self._marker_id
-        e.set_root_pos(env_ids, m, self._tar_pos[env_ids])
-        e.set_root_rot(env_ids, m, torch.tensor([0.0, 0.0, 0.0, 1.0], device=self.device).expand(len(env_ids), 4))
-        e.set_root_vel(env_ids, m, 0.0)
-        e.set_root_ang_vel(env_ids, m, 0.0)
+        identity = torch.tensor([0.0, 0.0, 0.0, 1.0], device=self.device).expand(len(env_ids), 4)
+        e.set_root_state(env_ids, m, self._tar_pos[env_ids], identity, 0.0, 0.0)
 
     # ---------------------------------------------------------------- per step
     def _compute_task_obs(self, env_ids: torch.Tensor) -> torch.Tensor:

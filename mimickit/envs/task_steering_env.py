@@ -53,10 +53,7 @@ class TaskSteeringEnv(AMPTaskEnv):
         pos[:, 2] = MARKER_HEIGHT
         z = torch.zeros(len(env_ids), 3, device=self.device)
         z[:, 2] = 1.0
-        e.set_root_pos(env_ids, m, pos)
-        e.set_root_rot(env_ids, m, tu.quat_from_axis_angle(z, torch.atan2(d[:, 1], d[:, 0])))
-        e.set_root_vel(env_ids, m, 0.0)
-        e.set_root_ang_vel(env_ids, m, 0.0)
+        e.set_root_state(env_ids, m, pos, tu.quat_from_axis_angle(z, torch.atan2(d[:, 1], d[:, 0])), 0.0, 0.0)
 
     # ---------------------------------------------------------------- per step
     def _update_misc(self) -> None:

@@ -57,10 +57,7 @@ class ViewMotionEnv(CharEnv):
     def _sync_motion(self, env_ids: torch.Tensor, times: torch.Tensor) -> None:
         lib, e, c = self._motion_lib, self._engine, self._char_id
         f = lib.calc_motion_frame(self._motion_ids[env_ids], times)
-        e.set_root_pos(env_ids, c, f.root_pos)
-        e.set_root_rot(env_ids, c, f.root_rot)
-        e.set_root_vel(env_ids, c, f.root_vel)
-        e.set_root_ang_vel(env_ids, c, f.root_ang_vel)
+        e.set_root_state(env_ids, c, f.root_pos, f.root_rot, f.root_vel, f.root_ang_vel)
         e.set_dof_pos(env_ids, c, lib.joint_rot_to_dof(f.joint_rot))
         e.set_dof_vel(env_ids, c, f.dof_vel)
 

@@ -148,6 +148,26 @@ def test_state_round_trips_and_velocity_frames(humanoid_xml):
             np.testing.assert_allclose(engine.get_body_vel(0)[e, b], res[3:], atol=1e-4)
 
 
+def test_set_root_state_equals_the_four_root_setters(humanoid_xml):
+    n, ids = 4, torch.tensor([0, 2])
+    one_call, four_calls = make_engine(humanoid_xml, num_envs=n), make_engine(humanoid_xml, num_envs=n)
+    gen = torch.Generator().manual_seed(3)
+    for engine in (one_call, four_calls):  # both start moving, so that untouched rows have velocities to keep
+        engine.set_root_vel(None, 0, torch.ones(n, 3))
+        engine.set_root_ang_vel(None, 0, torch.full((n, 3), 0.5))
+    pos, rot = torch.randn(2, 3, generator=gen) + torch.tensor([0.0, 0.0, 1.0]), random_quat(2, gen)
+    vel, ang_vel = torch.randn(2, 3, generator=gen), torch.randn(2, 3, generator=gen)
+    one_call.set_root_state(ids, 0, pos, rot, vel, ang_vel)
+    four_calls.set_root_pos(ids, 0, pos)
+    four_calls.set_root_rot(ids, 0, rot)
+    four_calls.set_root_vel(ids, 0, vel)
+    four_calls.set_root_ang_vel(ids, 0, ang_vel)
+    for name in ("root_pos", "root_rot", "root_vel", "root_ang_vel", "body_pos", "body_vel"):
+        torch.testing.assert_close(getattr(one_call, f"get_{name}")(0), getattr(four_calls, f"get_{name}")(0), msg=name)
+    torch.testing.assert_close(one_call.get_root_vel(0)[ids], vel, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(one_call.get_root_ang_vel(0)[[1, 3]], torch.full((2, 3), 0.5), atol=1e-5, rtol=1e-5)
+
+
 def test_setting_only_some_envs_and_broadcast_values(humanoid_xml):
     engine = make_engine(humanoid_xml, num_envs=3)
     before = engine.get_root_pos(0).clone()
