@@ -91,7 +91,7 @@ class DeepMimicEnv(CharEnv):
     def get_ref_state(self) -> dict[str, torch.Tensor]:
         """The reference at the current motion time: root_pos [N,3], root_rot [N,4], joint_rot [N,J-1,4],
         dof_pos [N,D], body_pos [N,J,3], body_rot [N,J,4], velocities."""
-        return self._ref
+        return dict(self._ref, dof_pos=self._char_model.rot_to_dof(self._ref["joint_rot"]))
 
     def set_mode(self, mode: EnvMode) -> None:
         super().set_mode(mode)
@@ -111,7 +111,8 @@ class DeepMimicEnv(CharEnv):
     # The clip is evaluated at the motion time and at the target steps ahead: frames [N, S, ...] with
     # column 0 "now". `_ref` and `_tar` are views into these buffers. A control step advances every
     # env by one column, so when the steps are 0, 1, ..., S-1 the buffers shift and only the newest
-    # column needs the MotionLib and FK: a quarter of the work for the humanoid's [1, 2, 3].
+    # column needs the MotionLib and FK: a quarter of the work for the humanoid's [1, 2, 3]. The
+    # reference's dof_pos is not kept: only resets (and get_ref_state) need it, for the envs they touch.
     def _eval_frames(self, env_ids: torch.Tensor, times: torch.Tensor, steps: torch.Tensor) -> dict[str, torch.Tensor]:
         """The clip at `times` [n] + steps × dt with one MotionLib call and one FK: {key: [n, len(steps), ...]}."""
         n, s = len(env_ids), len(steps)
@@ -120,7 +121,7 @@ class DeepMimicEnv(CharEnv):
         body_pos, body_rot = self._char_model.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
         values = {
             "root_pos": f.root_pos, "root_rot": f.root_rot, "root_vel": f.root_vel, "root_ang_vel": f.root_ang_vel,
-            "joint_rot": f.joint_rot, "dof_pos": self._char_model.rot_to_dof(f.joint_rot), "dof_vel": f.dof_vel,
+            "joint_rot": f.joint_rot, "dof_vel": f.dof_vel,
             "body_pos": body_pos, "body_rot": body_rot,
         }  # fmt: skip
         return {k: v.view(n, s, *v.shape[1:]) for k, v in values.items()}
@@ -163,7 +164,7 @@ class DeepMimicEnv(CharEnv):
         e.set_root_state(
             env_ids, c, self._ref["root_pos"][env_ids] + self._ref_char_offset, self._ref["root_rot"][env_ids], 0.0, 0.0
         )
-        e.set_dof_pos(env_ids, c, self._ref["dof_pos"][env_ids])
+        e.set_dof_pos(env_ids, c, self._char_model.rot_to_dof(self._ref["joint_rot"][env_ids]))
         e.set_dof_vel(env_ids, c, 0.0)
 
     # ---------------------------------------------------------------- resets
@@ -179,7 +180,7 @@ class DeepMimicEnv(CharEnv):
             env_ids, c, ref["root_pos"][env_ids], ref["root_rot"][env_ids], ref["root_vel"][env_ids],
             ref["root_ang_vel"][env_ids],
         )  # fmt: skip
-        e.set_dof_pos(env_ids, c, ref["dof_pos"][env_ids])
+        e.set_dof_pos(env_ids, c, self._char_model.rot_to_dof(ref["joint_rot"][env_ids]))
         e.set_dof_vel(env_ids, c, ref["dof_vel"][env_ids])
         if self._enable_ref_char:
             self._pose_ref_char(env_ids)
