@@ -46,7 +46,7 @@ PRESETS: dict[str, tuple[str, list[str]]] = {
         ["tracking.body_pos_err", "tracking.dof_vel_err", "reward_terms.disc", "disc_pos_acc", "disc_neg_acc"],
     ),
     "location": ("amp_location_humanoid_cpu_args.txt", ["tar_reached_frac", "tar_episodes", "reward_terms.task"]),
-    "ase": ("ase_humanoid_args.txt", ["reward_terms.disc", "reward_terms.enc", "diversity_loss"]),
+    "ase": ("ase_humanoid_cpu_args.txt", ["reward_terms.disc", "reward_terms.enc", "diversity_loss"]),
 }
 
 
