@@ -138,19 +138,26 @@ def plot_logs(
         raise MimicKitError(f"--out must be a .png file, got {out}")
     ys = [c.lower() for c in (columns or DEFAULT_COLUMNS)]
     files = [find_log(p) for p in paths]
-    # Read and check everything before drawing, so a bad column fails without a half-made figure.
-    curves = [[curve(read_log(f), x, y, f) for y in ys] for f in files]
+    # Read and check everything before drawing, so a bad column fails without a half-made figure. A column
+    # that only some runs have (AMP has no tracking errors, ADD has) is drawn for those; in none, an error.
+    logs = [read_log(f) for f in files]
+    for y in ys:
+        if not any(y in cols for cols in logs):
+            curve(logs[0], x, y, files[0] if len(files) == 1 else ", ".join(map(str, files)))  # raises
+    curves = [[curve(cols, x, y, f) if y in cols else None for y in ys] for f, cols in zip(files, logs, strict=True)]
     fig, axes = plt.subplots(
         len(ys), 1, sharex=True, squeeze=False, figsize=(FIG_WIDTH_IN, SUBPLOT_HEIGHT_IN * len(ys)), dpi=DPI
     )
     try:
-        for label, run in zip(run_labels(files), curves, strict=True):
-            for ax, (xs, vals) in zip(axes[:, 0], run, strict=True):
-                ax.plot(xs, vals, label=label, linewidth=1.2)
+        handles = {}
+        for i, (label, run) in enumerate(zip(run_labels(files), curves, strict=True)):
+            for ax, points in zip(axes[:, 0], run, strict=True):
+                if points is not None:  # the run's colour stays its own in every subplot
+                    (handles[label],) = ax.plot(*points, label=label, linewidth=1.2, color=f"C{i % 10}")
         for ax, y in zip(axes[:, 0], ys, strict=True):
             ax.set_ylabel(y)
             ax.grid(alpha=0.3)
-        axes[0, 0].legend(fontsize="small")
+        axes[0, 0].legend(handles.values(), handles.keys(), fontsize="small")
         axes[-1, 0].set_xlabel(X_LABELS[x])
         fig.tight_layout()
         out.parent.mkdir(parents=True, exist_ok=True)

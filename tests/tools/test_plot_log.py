@@ -90,6 +90,20 @@ def test_missing_column_is_one_error_naming_it(tmp_path: Path, capsys: pytest.Ca
     assert not out.exists()
 
 
+def test_a_column_only_one_run_has_is_drawn_for_that_run(tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    metrics = write_metrics(tmp_path / "a" / "metrics.jsonl")  # has reward_terms.pose
+    log = write_log_txt(tmp_path / "b" / "log.txt")  # has not
+    out = tmp_path / "p.png"
+    plot_logs([metrics, log], out, x="samples", columns=["reward_terms.pose"])
+    rgb = iio.imread(out)[..., :3].astype(int)
+    assert (np.abs(rgb - C0).sum(-1) < 30).sum() > 100  # run a's line
+    assert (np.abs(rgb - C1).sum(-1) < 30).sum() == 0  # no line for run b
+    with pytest.raises(MimicKitError, match=r"metrics.jsonl, .*log.txt: no column 'disc_loss'"):
+        plot_logs([metrics, log], tmp_path / "q.png", columns=["disc_loss"])
+
+
 def test_bad_files_are_errors_naming_the_file(tmp_path: Path) -> None:
     with pytest.raises(MimicKitError, match="log file not found: .*nope.txt"):
         read_log(tmp_path / "nope.txt")
