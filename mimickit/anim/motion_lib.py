@@ -105,8 +105,11 @@ class MotionLib:
 
         frames = torch.cat([torch.as_tensor(m.frames, dtype=torch.float32) for m in motions]).to(dev)
         self.root_pos = frames[:, 0:3].contiguous()
-        self.root_rot = tu.quat_pos(tu.exp_map_to_quat(frames[:, 3:6]))
-        self.joint_rot = tu.quat_pos(self.char_model.dof_to_rot(frames[:, 6:]))
+        root_rot = tu.quat_pos(tu.exp_map_to_quat(frames[:, 3:6]))
+        joint_rot = tu.quat_pos(self.char_model.dof_to_rot(frames[:, 6:]))
+        # Root and joint rotations side by side [F, J, 4], so that a frame query slerps them in one go.
+        self._rots = torch.cat([root_rot.unsqueeze(1), joint_rot], dim=1)
+        self.root_rot, self.joint_rot = self._rots[:, 0], self._rots[:, 1:]
         self.dof_pos = self.char_model.rot_to_dof(self.joint_rot)
         self._compute_velocities(motions)
 
@@ -177,8 +180,8 @@ class MotionLib:
         i0, i1, blend = self._frame_blend(ids, times)
         b = blend.unsqueeze(-1)
         root_pos = (1.0 - b) * self.root_pos[i0] + b * self.root_pos[i1]
-        root_rot = tu.slerp(self.root_rot[i0], self.root_rot[i1], b)
-        joint_rot = tu.slerp(self.joint_rot[i0], self.joint_rot[i1], b.unsqueeze(-1))
+        rots = tu.slerp(self._rots[i0], self._rots[i1], b.unsqueeze(-1))
+        root_rot, joint_rot = rots[:, 0], rots[:, 1:]
         length = self._length[ids]
         cycles = torch.floor(times / length.clamp_min(1e-8))
         cycles = torch.where(self._loop_mode[ids] == LoopMode.WRAP, cycles, torch.zeros_like(cycles))

@@ -273,8 +273,12 @@ class Engine(abc.ABC):
         """Store the command [N, D] for the control mode (pos targets, vel targets or torques)."""
 
     @abc.abstractmethod
-    def step(self) -> None:
-        """Advance one control step (all substeps, all envs) and refresh the state tensors."""
+    def step(self, concurrent: Callable[[], None] | None = None) -> None:
+        """Advance one control step (all substeps, all envs) and refresh the state tensors.
+
+        `concurrent`, if given, is called once on the calling thread while the physics runs (the MuJoCo
+        engine's workers step the envs meanwhile; Newton's kernels are queued before it): work that does
+        not read or write the engine's state, such as evaluating a reference clip at the new time."""
 
     # ------------------------------------------------------------------ timing / misc
     def get_timestep(self) -> float:

@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import math
 import os
+import queue
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
@@ -68,6 +70,10 @@ _CONTACT_SENSOR_INTPRM = [1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE), 3, 1
 # MjData fields gathered into stacked [N, ...] arrays after every step.
 # (Actuator forces are read only when asked for: the envs never do.)
 _GATHERED_FIELDS = ("qpos", "qvel", "xpos", "xquat", "xipos", "cvel", "subtree_com", "sensordata")
+
+SMALL_CHUNK = 16
+"""Envs per chunk when the calling thread shares a step with other work (`step(concurrent=...)`): small
+enough that the threads end within ~1/16 of a step of each other, large enough that the queue is cheap."""
 
 
 # ---------------------------------------------------------------------------------------------- records
@@ -512,6 +518,10 @@ class MujocoEngine(Engine):
         nchunk = nthread
         bounds = np.linspace(0, self._num_envs, nchunk + 1).round().astype(int)
         self._chunks = [slice(int(lo), int(hi)) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True) if hi > lo]
+        # For steps that share the calling thread with other work: chunks of SMALL_CHUNK envs.
+        self._small_chunks = [
+            slice(lo, min(lo + SMALL_CHUNK, self._num_envs)) for lo in range(0, self._num_envs, SMALL_CHUNK)
+        ]
         # Per env: (MjData, its ctrl array, the env's row of the command buffer), iterated by the workers.
         self._env_io = [(d, d.ctrl, self._ctrl[i]) for i, d in enumerate(self.mj_datas)]
         self._pool = ThreadPoolExecutor(max_workers=nthread - 1) if nthread > 1 else None
@@ -537,7 +547,7 @@ class MujocoEngine(Engine):
         target = self._pd_target if mode == ControlMode.pd_explicit else self._ctrl
         target[:, lay.act_ids] = values
 
-    def step(self) -> None:
+    def step(self, concurrent: Callable[[], None] | None = None) -> None:
         self._sync()
         self._push_body_forces()
         nsub = self._config.substeps
@@ -548,10 +558,11 @@ class MujocoEngine(Engine):
             flags = opt.disableflags
             opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_SENSOR
             try:
-                self._run_workers(nsub - 1, first=True, last=False)
+                self._run_workers(nsub - 1, first=True, last=False, concurrent=concurrent)
             finally:
                 opt.disableflags = flags
-        self._run_workers(1, first=nsub == 1, last=True)
+            concurrent = None
+        self._run_workers(1, first=nsub == 1, last=True, concurrent=concurrent)
         self._clear_body_forces()
         # Gather and refresh once here rather than per chunk in the workers: measured as fast or faster
         # (numpy ops in a worker hold the GIL that the other workers need between mj_step calls).
@@ -559,19 +570,48 @@ class MujocoEngine(Engine):
         self._refresh(slice(None))
         self._sim_time += self.get_timestep()
 
-    def _run_workers(self, nstep: int, first: bool, last: bool) -> None:
-        """Advance every env `nstep` substeps, one chunk per worker thread."""
+    def _run_workers(self, nstep: int, first: bool, last: bool, concurrent: Callable[[], None] | None = None) -> None:
+        """Advance every env `nstep` substeps, one chunk per worker thread; with `concurrent`, the calling
+        thread runs it first and then helps with the small chunks the workers have not taken yet."""
         pd = self._config.control_mode == ControlMode.pd_explicit
         worker = partial(self._step_chunk_pd_explicit if pd else self._step_chunk, nstep=nstep, first=first, last=last)
         if self._pool is None:  # one thread, or closed
+            if concurrent is not None:
+                concurrent()
             for chunk in self._chunks:
                 worker(chunk)
+            return
+        if concurrent is not None:
+            self._run_shared(worker, concurrent)
             return
         # The calling thread steps the first chunk itself: one thread hand-off fewer per call.
         futures = [self._pool.submit(worker, chunk) for chunk in self._chunks[1:]]
         worker(self._chunks[0])
         for f in futures:
             f.result()  # re-raises a worker's exception here
+
+    def _run_shared(self, worker: Callable[[slice], None], concurrent: Callable[[], None]) -> None:
+        """Workers take small chunks from a shared queue while the calling thread runs `concurrent`; then
+        it takes chunks too, so the envs it would have stepped go to whichever thread is free."""
+        todo: queue.SimpleQueue[slice] = queue.SimpleQueue()
+        for chunk in self._small_chunks:
+            todo.put(chunk)
+
+        def drain() -> None:
+            while True:
+                try:
+                    chunk = todo.get_nowait()
+                except queue.Empty:
+                    return
+                worker(chunk)
+
+        futures = [self._pool.submit(drain) for _ in self._chunks[1:]]
+        try:
+            concurrent()
+        finally:
+            drain()
+            for f in futures:
+                f.result()
 
     def _step_chunk(self, rows: slice, nstep: int, first: bool, last: bool) -> None:
         """Worker: `nstep` substeps of a contiguous chunk of envs (mj_step releases the GIL, so chunks run

@@ -37,6 +37,7 @@ the one counterpart, fed by the solver's CONTACT_F observable after the last sub
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import mujoco
@@ -484,7 +485,7 @@ class NewtonEngine(Engine):
             self._tau[obj_id][:] = torch.maximum(torch.minimum(value, limit), -limit)
             self._write_joint_f(lay, self._tau[obj_id])
 
-    def step(self) -> None:
+    def step(self, concurrent: Callable[[], None] | None = None) -> None:
         self._sync()
         dt = self.get_sim_timestep()
         nsub = self._config.substeps
@@ -501,6 +502,8 @@ class NewtonEngine(Engine):
             self.solver.step(self.state, self.state, self.control, self.contacts, dt, observables=obs)
         if self.sensor is not None:
             self.sensor.update(self.state, self.contacts, observables=self.observables)
+        if concurrent is not None:  # on a GPU the kernels above are queued, not yet run: this overlaps them
+            concurrent()
         if self._has_forces:
             self._force_buf.zero_()
             self._has_forces = False

@@ -61,9 +61,8 @@ class ADDEnv(AMPEnv):
         return self._disc_obs_from_hist(hist)
 
     # ---------------------------------------------------------------- per step
-    def _update_misc(self) -> None:
-        DeepMimicEnv._update_misc(self)  # the reference every step: tracking, pose termination, demo
-        self._push_disc_hist()
+    def _ref_each_step(self) -> bool:
+        return True  # the reference every step: tracking, pose termination, demo disc obs
 
     def _update_info(self, env_ids: torch.Tensor | None = None) -> None:
         """Tracking errors, agent and demo disc obs of the given envs (all when None), reward terms."""

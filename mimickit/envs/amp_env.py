@@ -118,11 +118,12 @@ class AMPEnv(DeepMimicEnv):
         super()._reset_envs(env_ids)
         self._reset_disc_hist(env_ids)
 
-    def _update_misc(self) -> None:
-        super(DeepMimicEnv, self)._update_misc()
+    def _ref_each_step(self) -> bool:
         # AMP neither tracks nor rewards the reference: only the visual twin needs it every step.
-        if self._enable_ref_char:
-            self._update_ref()
+        return self._enable_ref_char
+
+    def _update_misc(self) -> None:
+        super()._update_misc()
         self._push_disc_hist()
 
     def _update_info(self, env_ids: torch.Tensor | None = None) -> None:

@@ -65,14 +65,42 @@ def compute_tar_obs(
     """Target frames S steps ahead: tar_root_pos [N,S,3], tar_root_rot [N,S,4], tar_joint_rot [N,S,J-1,4],
     tar_key_pos [N,S,K,3] relative to the reference root ref_root_pos [N,3] / ref_root_rot [N,4] →
     [N, S·(3|2 + 6 + 6(J-1) + 3K)]."""
-    rel = tar_root_pos - ref_root_pos.unsqueeze(-2)
+    pose = compute_tar_pose_obs(ref_root_rot, tar_root_pos, tar_root_rot, tar_joint_rot, tar_key_pos, global_obs)
+    return join_tar_obs(ref_root_pos, ref_root_rot, tar_root_pos, pose, global_obs, root_height_obs)
+
+
+def compute_tar_pose_obs(
+    ref_root_rot: torch.Tensor,
+    tar_root_pos: torch.Tensor,
+    tar_root_rot: torch.Tensor,
+    tar_joint_rot: torch.Tensor,
+    tar_key_pos: torch.Tensor,
+    global_obs: bool,
+) -> torch.Tensor:
+    """The target features that do not depend on the reference root's position, [N, S, 6 + 6(J-1) + 3K]:
+    with global observations they depend on the clip alone, so an env can compute them ahead."""
     key = tar_key_pos - tar_root_pos.unsqueeze(-2)
     rot = tar_root_rot
     if not global_obs:
         heading_inv = tu.calc_heading_quat_inv(ref_root_rot).unsqueeze(-2)  # [N,1,4]
-        rel = tu.quat_rotate(heading_inv, rel)
         rot = tu.quat_mul(heading_inv.expand_as(rot), rot)
         key = tu.quat_rotate(heading_inv.unsqueeze(-2), key)
+    parts = [tu.quat_to_tan_norm(rot), tu.quat_to_tan_norm(tar_joint_rot).flatten(-2), key.flatten(-2)]
+    return torch.cat(parts, dim=-1)
+
+
+def join_tar_obs(
+    ref_root_pos: torch.Tensor,
+    ref_root_rot: torch.Tensor,
+    tar_root_pos: torch.Tensor,
+    pose_obs: torch.Tensor,
+    global_obs: bool,
+    root_height_obs: bool,
+) -> torch.Tensor:
+    """The target obs from `compute_tar_pose_obs` and the targets' root positions relative to the
+    reference root."""
+    rel = tar_root_pos - ref_root_pos.unsqueeze(-2)
+    if not global_obs:
+        rel = tu.quat_rotate(tu.calc_heading_quat_inv(ref_root_rot).unsqueeze(-2), rel)
     rel = torch.cat([rel[..., :2], tar_root_pos[..., 2:3]], dim=-1) if root_height_obs else rel[..., :2]
-    per_step = [rel, tu.quat_to_tan_norm(rot), tu.quat_to_tan_norm(tar_joint_rot).flatten(-2), key.flatten(-2)]
-    return torch.cat(per_step, dim=-1).flatten(-2)
+    return torch.cat([rel, pose_obs], dim=-1).flatten(-2)

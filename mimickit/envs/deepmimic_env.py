@@ -17,7 +17,7 @@ from mimickit.anim.motion_lib import MotionLib
 from mimickit.engines.engine import ObjType
 from mimickit.envs.base_env import DoneFlags, EnvMode
 from mimickit.envs.char_env import CharEnv
-from mimickit.envs.char_obs import compute_phase_obs, compute_tar_obs
+from mimickit.envs.char_obs import compute_phase_obs, compute_tar_pose_obs, join_tar_obs
 from mimickit.envs.deepmimic_rewards import TERM_NAMES, compute_reward_terms, tracking_errors
 from mimickit.envs.env_config import DeepMimicEnvConfig
 from mimickit.util import torch_util as tu
@@ -72,6 +72,7 @@ class DeepMimicEnv(CharEnv):
         self._ref_steps = torch.tensor([0, *steps], dtype=torch.float32, device=dev)
         self._all_env_ids = torch.arange(n, device=dev)
         self._frames: dict[str, torch.Tensor] = {}
+        self._tar_pose_obs: torch.Tensor | None = None  # valid from `_update_clock` until the frames change
         self._eval_ref(torch.arange(n, device=dev), self._motion_time_offsets)
         self._ref_char_offset = torch.tensor(config.ref_char_offset, dtype=torch.float32, device=dev)
 
@@ -128,6 +129,7 @@ class DeepMimicEnv(CharEnv):
 
     def _eval_ref(self, env_ids: torch.Tensor, times: torch.Tensor) -> None:
         """Evaluate every column for `env_ids` (resets, first build)."""
+        self._tar_pose_obs = None
         frames = self._eval_frames(env_ids, times, self._ref_steps)
         if not self._frames:
             self._alloc_frames(frames)
@@ -143,6 +145,7 @@ class DeepMimicEnv(CharEnv):
 
     def _advance_ref(self) -> None:
         """All envs moved one control step on: shift the columns and evaluate only the newest."""
+        self._tar_pose_obs = None
         if not self._can_shift or len(self._ref_steps) == 1:
             self._eval_ref(self._all_env_ids, self.get_motion_time())
             return
@@ -151,13 +154,9 @@ class DeepMimicEnv(CharEnv):
             buf[:, :-1] = buf[:, 1:].clone()
             buf[:, -1:] = newest[k]
 
-    def _update_ref(self, env_ids: torch.Tensor | None = None) -> None:
-        if env_ids is None:
-            self._advance_ref()
-        else:
-            self._eval_ref(env_ids, self.get_motion_time(env_ids))
-        if self._enable_ref_char:
-            self._pose_ref_char(self._all_env_ids if env_ids is None else env_ids)
+    def _ref_each_step(self) -> bool:
+        """Whether the reference is evaluated at every step (it is read by the reward or observations)."""
+        return True
 
     def _pose_ref_char(self, env_ids: torch.Tensor) -> None:
         e, c = self._engine, self._ref_char_id
@@ -186,9 +185,17 @@ class DeepMimicEnv(CharEnv):
             self._pose_ref_char(env_ids)
 
     # ---------------------------------------------------------- per step
+    def _update_clock(self) -> None:
+        super()._update_clock()
+        if self._ref_each_step():
+            self._advance_ref()
+            if self.config.enable_tar_obs:  # the clip alone decides them: computed while the physics runs
+                self._tar_pose_obs = self._tar_pose(self._tar)
+
     def _update_misc(self) -> None:
         super()._update_misc()
-        self._update_ref()
+        if self._enable_ref_char:  # the engine may be written only now, after its step
+            self._pose_ref_char(self._all_env_ids)
 
     def _compute_obs(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
         obs = [super()._compute_obs(env_ids)]
@@ -202,17 +209,22 @@ class DeepMimicEnv(CharEnv):
 
     def _compute_tar_obs(self, env_ids: torch.Tensor | None) -> torch.Tensor:
         """Target frames from the buffers `_eval_ref` filled for the current motion time (all envs: the
-        buffers themselves, no copy)."""
-        tar = dict(self._tar) if env_ids is None else {k: v[env_ids] for k, v in self._tar.items()}
-        tar["key_pos"] = tar.pop("body_pos")[:, :, self._key_body_ids]
+        buffers themselves, no copy, and the pose features `_update_clock` computed during the physics)."""
+        tar = self._tar if env_ids is None else {k: v[env_ids] for k, v in self._tar.items()}
         if self.config.global_obs:
             root_pos = self._engine.get_root_pos(self._char_id)
-            ref_pos, ref_rot = root_pos if env_ids is None else root_pos[env_ids], tar["root_rot"][:, 0]
+            ref_pos = root_pos if env_ids is None else root_pos[env_ids]
         else:
-            ref_pos, ref_rot = tar["root_pos"][:, 0], tar["root_rot"][:, 0]
-        return compute_tar_obs(
-            ref_pos, ref_rot, tar["root_pos"], tar["root_rot"], tar["joint_rot"], tar["key_pos"],
-            self.config.global_obs, self.config.root_height_obs,
+            ref_pos = tar["root_pos"][:, 0]
+        ref_rot = tar["root_rot"][:, 0]
+        pose = self._tar_pose_obs if env_ids is None and self._tar_pose_obs is not None else self._tar_pose(tar)
+        cfg = self.config
+        return join_tar_obs(ref_pos, ref_rot, tar["root_pos"], pose, cfg.global_obs, cfg.root_height_obs)
+
+    def _tar_pose(self, tar: dict[str, torch.Tensor]) -> torch.Tensor:
+        return compute_tar_pose_obs(
+            tar["root_rot"][:, 0], tar["root_pos"], tar["root_rot"], tar["joint_rot"],
+            tar["body_pos"][:, :, self._key_body_ids], self.config.global_obs,
         )  # fmt: skip
 
     def _sim_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:

@@ -106,10 +106,9 @@ class SimEnv(BaseEnv):
     def _step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         with self.profiler.phase("action"):
             self._apply_action(action)
-        with self.profiler.phase("physics"):
-            self._engine.step()
+        with self.profiler.phase("physics"):  # includes the clock work, which runs while the physics does
+            self._engine.step(concurrent=self._update_clock)
         with self.profiler.phase("task"):
-            self._update_time()
             self._update_misc()
         with self._frozen_state():
             with self.profiler.phase("observation"):
@@ -138,6 +137,11 @@ class SimEnv(BaseEnv):
 
     @abc.abstractmethod
     def _apply_action(self, action: torch.Tensor) -> None: ...
+
+    def _update_clock(self) -> None:
+        """Advance the env clock and what depends on it alone (a reference clip at the new time). The
+        engine runs this while it steps (`Engine.step(concurrent=...)`), so it must not touch the engine."""
+        self._update_time()
 
     def _update_time(self) -> None:
         self._timestep_buf += 1

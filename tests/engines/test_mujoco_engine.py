@@ -13,7 +13,7 @@ import torch
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.engines.engine import ControlMode, EngineConfig, ObjType
 from mimickit.engines.engine_builder import build_engine
-from mimickit.engines.mujoco_engine import MujocoEngine
+from mimickit.engines.mujoco_engine import SMALL_CHUNK, MujocoEngine
 from mimickit.util import torch_util as tu
 from mimickit.util.config import load_config
 from mimickit.util.errors import MimicKitError
@@ -313,6 +313,39 @@ def test_threaded_stepping_equals_one_thread(humanoid_xml):
     engines[1].step()
     engines[0].step()
     assert torch.equal(engines[0].get_dof_pos(0), engines[1].get_dof_pos(0))
+
+
+def test_concurrent_work_runs_once_per_step_and_leaves_the_physics_unchanged(humanoid_xml):
+    """step(concurrent=fn): fn runs on the calling thread while the worker takes small chunks of envs;
+    every env ends bit-identical to a plain step, and an error in fn surfaces after the workers finish."""
+    n = 2 * SMALL_CHUNK + 3  # several chunks, the last one short
+    engines = []
+    for _ in range(2):
+        cfg = EngineConfig(engine_name="mujoco", control_mode="pos", control_freq=30, sim_freq=240, env_spacing=5,
+                           num_threads=2)  # fmt: skip
+        engine = MujocoEngine(cfg, n, "cpu")
+        for _ in range(n):
+            engine.create_obj(engine.create_env(), ObjType.articulated, str(humanoid_xml), "h", start_pos=INIT_ROOT_POS)
+        engine.initialize_sim()
+        engines.append(engine)
+    calls = []
+    gen = torch.Generator().manual_seed(5)
+    for _ in range(4):
+        cmd = random_dof(engines[0], n, gen)
+        for engine in engines:
+            engine.set_cmd(0, cmd)
+        engines[0].step()
+        engines[1].step(concurrent=lambda: calls.append(torch.randn(256, 64).sum()))
+    assert len(calls) == 4
+    assert torch.equal(engines[0].get_body_pos(0), engines[1].get_body_pos(0))
+    assert torch.equal(engines[0].get_dof_vel(0), engines[1].get_dof_vel(0))
+
+    def fail() -> None:
+        raise ValueError("from the concurrent work")
+
+    with pytest.raises(ValueError, match="concurrent work"):
+        engines[1].step(concurrent=fail)
+    engines[1].step()  # the workers finished: the engine steps on
 
 
 # ---------------------------------------------------------------------------------------------- contacts

@@ -163,3 +163,20 @@ def test_shifted_reference_equals_full_evaluation():
     fresh = env._eval_frames(ids, env.get_motion_time(ids), env._ref_steps)
     for k, v in fresh.items():
         torch.testing.assert_close(shifted[k], v, atol=1e-4, rtol=0, msg=k)
+
+
+@pytest.mark.parametrize("global_obs", [True, False])
+def test_step_observation_equals_one_computed_afresh(global_obs):
+    """A step's target features come from `_update_clock`, computed while the physics runs; they must
+    equal the observation computed from scratch for the same envs, also right after some envs reset."""
+    env = make(DEEPMIMIC, num_envs=5, global_obs=global_obs)
+    env.reset()
+    gen = torch.Generator().manual_seed(2)
+    low, high = (torch.as_tensor(b) for b in (env.get_action_space().low, env.get_action_space().high))
+    for i in range(6):
+        obs, _, _, _ = env.step(low + (high - low) * torch.rand(5, low.shape[0], generator=gen))
+        assert env._tar_pose_obs is not None
+        torch.testing.assert_close(obs, env._compute_obs(torch.arange(5)), atol=0, rtol=0)
+        if i == 2:
+            env.reset(torch.tensor([0, 4]))
+            assert env._tar_pose_obs is None  # the reset envs' frames changed: recomputed at the next step
