@@ -378,6 +378,12 @@ class Engine(abc.ABC):
     def get_dof_vel(self, obj_id: int) -> torch.Tensor:
         """[N, D] joint velocities (spherical: local angular velocity)."""
 
+    def get_joint_rot(self, obj_id: int) -> torch.Tensor:
+        """[N, J-1, 4] each joint's local rotation, xyzw (identity for fixed joints): the DoFs as the
+        kinematic model's `dof_to_rot` turns them into rotations. An engine that stores rotations
+        (MuJoCo's ball joints are quaternions) overrides it to skip the exp-map round trip."""
+        return self._obj_kin(obj_id).dof_to_rot(self.get_dof_pos(obj_id))
+
     @abc.abstractmethod
     def get_dof_forces(self, obj_id: int) -> torch.Tensor:
         """[N, D] actuator forces of the last substep."""
@@ -446,6 +452,15 @@ class Engine(abc.ABC):
     @abc.abstractmethod
     def set_dof_vel(self, env_ids: EnvIds, obj_id: int, dof_vel: torch.Tensor | float) -> None:
         """dof_vel broadcastable to [n, D]."""
+
+    def set_joint_rot(self, env_ids: EnvIds, obj_id: int, joint_rot: torch.Tensor) -> None:
+        """Set the DoFs from local joint rotations [n, J-1, 4] (xyzw), as `set_dof_pos` of the model's
+        `rot_to_dof`: what a reset to a clip frame does."""
+        self.set_dof_pos(env_ids, obj_id, self._obj_kin(obj_id).rot_to_dof(joint_rot))
+
+    @abc.abstractmethod
+    def _obj_kin(self, obj_id: int) -> KinCharModel:
+        """The kinematic model of object `obj_id` (its joints and DoF layout)."""
 
     @abc.abstractmethod
     def set_body_pos(self, env_ids: EnvIds, obj_id: int, body_pos: torch.Tensor | float) -> None:

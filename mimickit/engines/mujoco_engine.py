@@ -111,6 +111,9 @@ class _ObjLayout:
     hinge_qpos: np.ndarray  # [H] their qpos addresses
     ball_cols: np.ndarray  # [K, 3] DoF columns of ball joints (exp-map components)
     ball_qpos: np.ndarray  # [K, 4] their quaternion qpos addresses (w first)
+    hinge_joints: np.ndarray  # [H] joint index (0 .. J-2, root excluded) of each hinge
+    hinge_axes: np.ndarray  # [H, 3] unit hinge axes in the joint frame
+    ball_joints: np.ndarray  # [K] joint index of each ball joint
     act_ids: np.ndarray  # [D] actuator per DoF, empty without motors
     contact_adr: np.ndarray  # [B * 3] sensordata columns: total contact force per body (on the sensor's body1)
     ground_adr: np.ndarray  # [B * 3] sensordata columns: floor contact force per body
@@ -130,14 +133,14 @@ class _ObjState:
     """One object's state buffers. The refresh writes float32 numpy arrays `host[name]`; the getters return
     the torch tensors `tensors[name]`, which share memory with `host` on the CPU and are uploaded copies on
     another device. Names and shapes: body_pos/body_vel/body_ang_vel/contact_forces/ground_contact_forces
-    [N, B, 3], body_rot [N, B, 4], dof_pos/dof_vel/dof_forces [N, D]; root_pos/root_rot/root_vel/
+    [N, B, 3], body_rot [N, B, 4], dof_pos/dof_vel/dof_forces [N, D], joint_rot [N, B-1, 4]; root_pos/root_rot/root_vel/
     root_ang_vel [N, 3|4] are views of body 0 of the body buffers (the root is body 0)."""
 
     def __init__(self, n: int, b: int, d: int, device: torch.device):
         shapes = {
             "body_pos": (n, b, 3), "body_rot": (n, b, 4), "body_vel": (n, b, 3), "body_ang_vel": (n, b, 3),
             "contact_forces": (n, b, 3), "ground_contact_forces": (n, b, 3),
-            "dof_pos": (n, d), "dof_vel": (n, d), "dof_forces": (n, d),
+            "dof_pos": (n, d), "dof_vel": (n, d), "dof_forces": (n, d), "joint_rot": (n, max(b - 1, 0), 4),
         }  # fmt: skip
         self.host = {k: np.zeros(shape, dtype=np.float32) for k, shape in shapes.items()}
         self.on_cpu = device.type == "cpu"
@@ -441,7 +444,8 @@ class MujocoEngine(Engine):
         free = m.body_jntnum[root] == 1
         root_jnt = int(m.body_jntadr[root])
         dof_qvel, hinge_cols, hinge_qpos, ball_cols, ball_qpos = [], [], [], [], []
-        for joint in kin.joints[1:]:
+        hinge_joints, hinge_axes, ball_joints = [], [], []
+        for jid, joint in enumerate(kin.joints[1:]):
             if joint.dof_dim == 0:
                 continue
             j = int(m.body_jntadr[body_ids[joint.body_id]])
@@ -450,10 +454,13 @@ class MujocoEngine(Engine):
                 hinge_cols.append(joint.dof_idx)
                 hinge_qpos.append(qadr)
                 dof_qvel.append(vadr)
+                hinge_joints.append(jid)
+                hinge_axes.append(np.asarray(joint.axis, dtype=np.float64) / np.linalg.norm(joint.axis))
             else:
                 ball_cols.append([joint.dof_idx + k for k in range(3)])
                 ball_qpos.append([qadr + k for k in range(4)])
                 dof_qvel += [vadr + k for k in range(3)]
+                ball_joints.append(jid)
         act_names = self._actuator_names(kin) if self._has_motors(rec, kin) else []
         act_ids = np.array([m.actuator(prefix + a).id for a in act_names], dtype=np.int64)
         contact_adr, ground_adr = [], []
@@ -474,6 +481,9 @@ class MujocoEngine(Engine):
             hinge_qpos=np.array(hinge_qpos, dtype=np.int64),
             ball_cols=np.array(ball_cols, dtype=np.int64).reshape(-1, 3),
             ball_qpos=np.array(ball_qpos, dtype=np.int64).reshape(-1, 4),
+            hinge_joints=np.array(hinge_joints, dtype=np.int64),
+            hinge_axes=np.array(hinge_axes, dtype=np.float64).reshape(-1, 3),
+            ball_joints=np.array(ball_joints, dtype=np.int64),
             act_ids=act_ids.astype(np.int64),
             contact_adr=np.array(contact_adr, dtype=np.int64),
             ground_adr=np.array(ground_adr, dtype=np.int64),
@@ -718,6 +728,12 @@ class MujocoEngine(Engine):
     def get_dof_vel(self, obj_id: int) -> torch.Tensor:
         return self._state(obj_id).tensors["dof_vel"]
 
+    def get_joint_rot(self, obj_id: int) -> torch.Tensor:
+        return self._state(obj_id).tensors["joint_rot"]
+
+    def _obj_kin(self, obj_id: int) -> KinCharModel:
+        return self._layouts[obj_id].kin
+
     def get_dof_forces(self, obj_id: int) -> torch.Tensor:
         """[N, D] actuator forces of the last substep, read from MjData at this call (not a live view)."""
         st, lay = self._state(obj_id), self._layouts[obj_id]
@@ -791,6 +807,22 @@ class MujocoEngine(Engine):
         if len(lay.ball_cols):
             quat = tu.quat_to_wxyz(tu.exp_map_to_quat(torch.from_numpy(dof[:, lay.ball_cols])))  # [n, K, 4]
             qpos[ids[:, None, None], lay.ball_qpos[None]] = quat.numpy()
+        self._dirty[ids] = True
+
+    def set_joint_rot(self, env_ids: EnvIds, obj_id: int, joint_rot: torch.Tensor) -> None:
+        """Ball joints take the quaternions as they are (MuJoCo stores quaternions); hinges the angle of
+        the rotation about their axis, as `rot_to_dof`."""
+        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
+        rot = np.broadcast_to(_to_numpy(joint_rot).astype(np.float64), (len(ids), lay.num_bodies - 1, 4))
+        qpos = self._host["qpos"]
+        if len(lay.hinge_cols):
+            q = rot[:, lay.hinge_joints]
+            q = np.where(q[..., 3:] < 0, -q, q)
+            angle = 2.0 * np.arctan2((q[..., :3] * lay.hinge_axes).sum(-1), q[..., 3])
+            qpos[np.ix_(ids, lay.hinge_qpos)] = angle
+        if len(lay.ball_cols):
+            q = rot[:, lay.ball_joints][..., [3, 0, 1, 2]]
+            qpos[ids[:, None, None], lay.ball_qpos[None]] = q / np.linalg.norm(q, axis=-1, keepdims=True)
         self._dirty[ids] = True
 
     def set_dof_vel(self, env_ids: EnvIds, obj_id: int, dof_vel: torch.Tensor | float) -> None:
@@ -943,8 +975,10 @@ def _refresh_obj(
         qpos = h["qpos"]
         dof_pos = np.empty((qpos.shape[0], lay.num_dofs))
         dof_pos[:, lay.hinge_cols] = qpos[:, lay.hinge_qpos]
-        dof_pos[:, lay.ball_cols] = _quat_wxyz_to_exp_map(qpos[:, lay.ball_qpos])
+        ball = _quat_wxyz_canonical(qpos[:, lay.ball_qpos])
+        dof_pos[:, lay.ball_cols] = _quat_wxyz_to_exp_map(ball)
         out["dof_pos"][rows] = dof_pos
+        out["joint_rot"][rows] = _joint_rot(lay, qpos[:, lay.hinge_qpos], ball)
         out["dof_vel"][rows] = h["qvel"][:, lay.dof_qvel]
 
     if contacts and len(lay.contact_adr):
@@ -954,11 +988,28 @@ def _refresh_obj(
         out["ground_contact_forces"][rows] = 0.0 - h["sensordata"][:, lay.ground_adr].reshape(n, nb, 3)
 
 
-def _quat_wxyz_to_exp_map(q: np.ndarray) -> np.ndarray:
-    """MuJoCo quaternions [..., 4] (w first) to exp-maps [..., 3]: numpy twin of
-    `torch_util.quat_to_exp_map` (normalised, w >= 0 so the angle is in [0, π], zero near identity)."""
+def _quat_wxyz_canonical(q: np.ndarray) -> np.ndarray:
+    """Quaternions [..., 4] (w first) normalised, with w >= 0."""
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    q = np.where(q[..., :1] < 0, -q, q)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def _joint_rot(lay: _ObjLayout, hinge_angle: np.ndarray, ball_wxyz: np.ndarray) -> np.ndarray:
+    """Local joint rotations [n, J-1, 4] (xyzw) from hinge angles [n, H] and canonical ball quaternions
+    [n, K, 4] (w first): what `KinCharModel.dof_to_rot` gives for the DoFs, without the exp-map trip."""
+    n = hinge_angle.shape[0]
+    rot = np.zeros((n, lay.num_bodies - 1, 4))
+    rot[..., 3] = 1.0
+    half = 0.5 * hinge_angle[..., None]
+    rot[:, lay.hinge_joints, :3] = lay.hinge_axes * np.sin(half)
+    rot[:, lay.hinge_joints, 3:] = np.cos(half)
+    rot[:, lay.ball_joints] = ball_wxyz[..., [1, 2, 3, 0]]
+    return rot
+
+
+def _quat_wxyz_to_exp_map(q: np.ndarray) -> np.ndarray:
+    """Canonical MuJoCo quaternions [..., 4] (w first, unit, w >= 0: `_quat_wxyz_canonical`) to exp-maps
+    [..., 3]: numpy twin of `torch_util.quat_to_exp_map` (the angle is in [0, π], zero near identity)."""
     v = q[..., 1:]
     sin_half = np.linalg.norm(v, axis=-1, keepdims=True)
     angle = 2.0 * np.arctan2(sin_half, q[..., :1])

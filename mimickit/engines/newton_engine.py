@@ -485,6 +485,9 @@ class NewtonEngine(Engine):
             self._tau[obj_id][:] = torch.maximum(torch.minimum(value, limit), -limit)
             self._write_joint_f(lay, self._tau[obj_id])
 
+    def _obj_kin(self, obj_id: int) -> KinCharModel:
+        return self._layouts[obj_id].kin
+
     def step(self, concurrent: Callable[[], None] | None = None) -> None:
         self._sync()
         dt = self.get_sim_timestep()

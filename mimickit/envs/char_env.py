@@ -131,10 +131,10 @@ class CharEnv(SimEnv):
             "dof_vel": e.get_dof_vel(c),
             "body_pos": e.get_body_pos(c),
             "body_rot": e.get_body_rot(c),
+            "joint_rot": e.get_joint_rot(c),
         }
         if env_ids is not None:
             state = {k: v[env_ids] for k, v in state.items()}
-        state["joint_rot"] = self._char_model.dof_to_rot(state["dof_pos"])
         return state
 
     def _compute_obs(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:

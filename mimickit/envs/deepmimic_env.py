@@ -163,7 +163,7 @@ class DeepMimicEnv(CharEnv):
         e.set_root_state(
             env_ids, c, self._ref["root_pos"][env_ids] + self._ref_char_offset, self._ref["root_rot"][env_ids], 0.0, 0.0
         )
-        e.set_dof_pos(env_ids, c, self._char_model.rot_to_dof(self._ref["joint_rot"][env_ids]))
+        e.set_joint_rot(env_ids, c, self._ref["joint_rot"][env_ids])
         e.set_dof_vel(env_ids, c, 0.0)
 
     # ---------------------------------------------------------------- resets
@@ -179,7 +179,7 @@ class DeepMimicEnv(CharEnv):
             env_ids, c, ref["root_pos"][env_ids], ref["root_rot"][env_ids], ref["root_vel"][env_ids],
             ref["root_ang_vel"][env_ids],
         )  # fmt: skip
-        e.set_dof_pos(env_ids, c, self._char_model.rot_to_dof(ref["joint_rot"][env_ids]))
+        e.set_joint_rot(env_ids, c, ref["joint_rot"][env_ids])
         e.set_dof_vel(env_ids, c, ref["dof_vel"][env_ids])
         if self._enable_ref_char:
             self._pose_ref_char(env_ids)

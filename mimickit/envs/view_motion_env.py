@@ -58,7 +58,7 @@ class ViewMotionEnv(CharEnv):
         lib, e, c = self._motion_lib, self._engine, self._char_id
         f = lib.calc_motion_frame(self._motion_ids[env_ids], times)
         e.set_root_state(env_ids, c, f.root_pos, f.root_rot, f.root_vel, f.root_ang_vel)
-        e.set_dof_pos(env_ids, c, lib.joint_rot_to_dof(f.joint_rot))
+        e.set_joint_rot(env_ids, c, f.joint_rot)
         e.set_dof_vel(env_ids, c, f.dof_vel)
 
     def _update_done(self) -> None:

@@ -112,8 +112,14 @@ def quat_angle(q: torch.Tensor) -> torch.Tensor:
 
 
 def quat_diff_angle(q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
-    """Angle in [0, π] of the rotation between q0 and q1."""
-    return quat_angle(quat_mul(q1, quat_conjugate(q0)))
+    """Angle in [0, π] of the rotation between q0 and q1: that of q1 ⊗ q0*, whose scalar part is the
+    4-vector dot product q0·q1 and whose vector part is w0 v1 − w1 v0 − v1 × v0 (written out: the rewards
+    and tracking errors take this for every joint of every env each step)."""
+    v0, w0 = q0[..., :3], q0[..., 3:]
+    v1, w1 = q1[..., :3], q1[..., 3:]
+    w = (q0 * q1).sum(-1)
+    v = w0 * v1 - w1 * v0 - _cross(v1, v0)
+    return 2.0 * torch.atan2(torch.linalg.norm(v, dim=-1), w.abs())
 
 
 def quat_to_tan_norm(q: torch.Tensor) -> torch.Tensor:

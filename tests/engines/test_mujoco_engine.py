@@ -148,6 +148,27 @@ def test_state_round_trips_and_velocity_frames(humanoid_xml):
             np.testing.assert_allclose(engine.get_body_vel(0)[e, b], res[3:], atol=1e-4)
 
 
+def test_joint_rotations_are_the_dofs_as_rotations_both_ways(humanoid_xml):
+    """get_joint_rot reads MuJoCo's ball quaternions and hinge angles directly; it must equal the
+    kinematic model's dof_to_rot of get_dof_pos (up to sign), and set_joint_rot must set the DoFs that
+    set_dof_pos of rot_to_dof would, also for only some envs."""
+    n = 6
+    engine = make_engine(humanoid_xml, num_envs=n)
+    kin = engine._layouts[0].kin
+    gen = torch.Generator().manual_seed(7)
+    dof = random_dof(engine, n, gen)
+    engine.set_dof_pos(None, 0, dof)
+    assert_quat_close(engine.get_joint_rot(0), kin.dof_to_rot(engine.get_dof_pos(0)), atol=1e-6)
+    assert tuple(engine.get_joint_rot(0).shape) == (n, kin.get_num_joints() - 1, 4)
+
+    rot = kin.dof_to_rot(random_dof(engine, 2, gen))
+    engine.set_joint_rot(torch.tensor([1, 4]), 0, rot)
+    expected = dof.clone()
+    expected[[1, 4]] = kin.rot_to_dof(rot)
+    torch.testing.assert_close(engine.get_dof_pos(0), expected, atol=1e-5, rtol=0)
+    assert_quat_close(engine.get_joint_rot(0)[[1, 4]], rot, atol=1e-6)
+
+
 def test_set_root_state_equals_the_four_root_setters(humanoid_xml):
     n, ids = 4, torch.tensor([0, 2])
     one_call, four_calls = make_engine(humanoid_xml, num_envs=n), make_engine(humanoid_xml, num_envs=n)
