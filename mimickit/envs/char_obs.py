@@ -35,8 +35,10 @@ def compute_char_obs(
         vel = tu.quat_rotate(heading_inv, root_vel)
         ang_vel = tu.quat_rotate(heading_inv, root_ang_vel)
         key = tu.quat_rotate(heading_inv.unsqueeze(-2), key_pos - root_pos.unsqueeze(-2))
-    parts += [tu.quat_to_tan_norm(rot), vel, ang_vel]
-    parts.append(tu.quat_to_tan_norm(joint_rot).flatten(-2))
+    # One tangent-normal call for the root and the joints: it is a few dozen small ops whatever the size.
+    tan_norm = tu.quat_to_tan_norm(torch.cat([rot.unsqueeze(-2), joint_rot], dim=-2))
+    parts += [tan_norm[..., 0, :], vel, ang_vel]
+    parts.append(tan_norm[..., 1:, :].flatten(-2))
     parts.append(dof_vel)
     parts.append(key.flatten(-2))
     return torch.cat(parts, dim=-1)
@@ -85,8 +87,8 @@ def compute_tar_pose_obs(
         heading_inv = tu.calc_heading_quat_inv(ref_root_rot).unsqueeze(-2)  # [N,1,4]
         rot = tu.quat_mul(heading_inv.expand_as(rot), rot)
         key = tu.quat_rotate(heading_inv.unsqueeze(-2), key)
-    parts = [tu.quat_to_tan_norm(rot), tu.quat_to_tan_norm(tar_joint_rot).flatten(-2), key.flatten(-2)]
-    return torch.cat(parts, dim=-1)
+    tan_norm = tu.quat_to_tan_norm(torch.cat([rot.unsqueeze(-2), tar_joint_rot], dim=-2))  # root, then joints
+    return torch.cat([tan_norm.flatten(-2), key.flatten(-2)], dim=-1)
 
 
 def join_tar_obs(
