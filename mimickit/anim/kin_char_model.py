@@ -174,20 +174,19 @@ class KinCharModel:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """World body positions [..., J, 3] and rotations [..., J, 4] from the root and joint rotations."""
         batch = root_pos.shape[:-1]
-        pos = root_pos.new_empty(*batch, self.get_num_joints(), 3)
         rot = root_rot.new_empty(*batch, self.get_num_joints(), 4)
-        pos[..., 0, :] = root_pos
         rot[..., 0, :] = root_rot
-        # Bodies of one tree depth depend only on shallower ones: one batched update per depth level.
-        local_rot, levels = self._fk_local_rot, self._fk_levels
-        if pos.dtype != local_rot.dtype:  # e.g. float64 callers: the precomputed float32 constants converted
-            local_rot = local_rot.to(pos.dtype)
-            levels = [(ids, parents, joints, offset.to(pos.dtype)) for ids, parents, joints, offset in levels]
+        local_rot, offsets, paths = self._fk_local_rot, self._fk_offsets, self._fk_paths
+        if rot.dtype != local_rot.dtype:  # e.g. float64 callers: the precomputed float32 constants converted
+            local_rot, offsets, paths = local_rot.to(rot.dtype), offsets.to(rot.dtype), paths.to(rot.dtype)
         local_rot = tu.quat_mul(local_rot, joint_rot)  # [..., J-1, 4]
-        for ids, parents, joints, offset in levels:
-            parent_rot = rot[..., parents, :]
-            pos[..., ids, :] = pos[..., parents, :] + tu.quat_rotate(parent_rot, offset)
-            rot[..., ids, :] = tu.quat_mul(parent_rot, local_rot[..., joints, :])
+        # Bodies of one tree depth depend only on shallower ones: one batched update per depth level.
+        for ids, parents, joints in self._fk_levels:
+            rot[..., ids, :] = tu.quat_mul(rot[..., parents, :], local_rot[..., joints, :])
+        # A body's position is the root's plus its ancestors' rotated offsets: all offsets rotated at once,
+        # then summed along each body's path with one matrix product (no per-level position updates).
+        steps = tu.quat_rotate(rot[..., self._fk_parents, :], offsets)  # [..., J-1, 3]
+        pos = root_pos.unsqueeze(-2) + paths @ steps
         return pos, rot
 
     def compute_dof_vel(self, rot0: torch.Tensor, rot1: torch.Tensor, dt: float) -> torch.Tensor:
@@ -233,10 +232,21 @@ class KinCharModel:
         depth = [0] * len(self.parent_ids)
         for j in range(1, len(self.parent_ids)):
             depth[j] = depth[self.parent_ids[j]] + 1
-        # Per depth level: body ids, their parents, their joints (body id - 1) and local offsets [L, 3].
-        self._fk_levels: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]] = []
+        # Per depth level: body ids, their parents and their joints (body id - 1).
+        self._fk_levels: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
         for level in range(1, max(depth, default=0) + 1):
             ids = torch.tensor([j for j, d in enumerate(depth) if d == level], dtype=torch.long, device=dev)
             parents = torch.tensor([self.parent_ids[j] for j in ids.tolist()], dtype=torch.long, device=dev)
-            self._fk_levels.append((ids, parents, ids - 1, self.local_pos[ids]))
+            self._fk_levels.append((ids, parents, ids - 1))
         self._fk_local_rot = self.local_rot[1:]
+        self._fk_parents = torch.tensor(self.parent_ids[1:], dtype=torch.long, device=dev)
+        self._fk_offsets = self.local_pos[1:]
+        # paths[i, a] = 1 when body a + 1 lies on the path from the root to body i (itself included).
+        n = len(self.parent_ids)
+        paths = torch.zeros(n, max(n - 1, 0), dtype=self.local_pos.dtype, device=dev)
+        for j in range(1, n):
+            a = j
+            while a > 0:
+                paths[j, a - 1] = 1.0
+                a = self.parent_ids[a]
+        self._fk_paths = paths

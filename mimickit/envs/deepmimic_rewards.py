@@ -79,7 +79,7 @@ def compute_reward_terms(
         rot, vel, ang_vel, key_rel = _in_heading_frame(rot, vel, ang_vel, key_rel)
         ref_rot, ref_vel, ref_ang_vel, ref_key_rel = _in_heading_frame(ref_rot, ref_vel, ref_ang_vel, ref_key_rel)
     errors = {
-        "pose": pose_error(tu.quat_normalize(sim["joint_rot"]), ref["joint_rot"], joint_err_w),
+        "pose": pose_error(sim["joint_rot"], ref["joint_rot"], joint_err_w),  # the angle ignores |q|
         "vel": vel_error(sim["dof_vel"], ref["dof_vel"], dof_err_w),
         "root_pose": root_pos_error(sim["root_pos"], ref["root_pos"], track_root, root_height_obs)
         + 0.1 * root_rot_error(rot, ref_rot),

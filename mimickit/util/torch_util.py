@@ -112,7 +112,8 @@ def quat_angle(q: torch.Tensor) -> torch.Tensor:
 
 
 def quat_diff_angle(q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
-    """Angle in [0, π] of the rotation between q0 and q1: that of q1 ⊗ q0*, whose scalar part is the
+    """Angle in [0, π] of the rotation between q0 and q1 (any norms: both parts of q1 ⊗ q0* scale alike,
+    their ratio decides): that of q1 ⊗ q0*, whose scalar part is the
     4-vector dot product q0·q1 and whose vector part is w0 v1 − w1 v0 − v1 × v0 (written out: the rewards
     and tracking errors take this for every joint of every env each step)."""
     v0, w0 = q0[..., :3], q0[..., 3:]

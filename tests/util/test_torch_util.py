@@ -92,6 +92,13 @@ def test_quat_diff_angle():
     a = tu.quat_from_axis_angle(torch.tensor([1.0, 0, 0]), torch.tensor(0.2))
     b = tu.quat_from_axis_angle(torch.tensor([1.0, 0, 0]), torch.tensor(-0.5))
     torch.testing.assert_close(tu.quat_diff_angle(a, b), torch.tensor(0.7), atol=1e-6, rtol=0)
+    torch.testing.assert_close(tu.quat_diff_angle(3.0 * a, -0.5 * b), torch.tensor(0.7), atol=1e-6, rtol=0)
+    # Against the angle of the relative quaternion built explicitly, on random pairs (and broadcast).
+    g = torch.Generator().manual_seed(3)
+    q0, q1 = (tu.quat_normalize(torch.randn(200, 4, generator=g)) for _ in range(2))
+    expected = tu.quat_angle(tu.quat_mul(q1, tu.quat_conjugate(q0)))
+    torch.testing.assert_close(tu.quat_diff_angle(q0, q1), expected, atol=2e-6, rtol=0)
+    assert tu.quat_diff_angle(q0[:3, None], q1[None, :5]).shape == (3, 5)
 
 
 def test_matrix_matches_rotate():
