@@ -150,7 +150,7 @@ class KinCharModel:
         batch = dof.shape[:-1]
         rot = tu.quat_identity((*batch, self.get_num_joints() - 1), dof.device).to(dof.dtype)
         if self._hinge_j.numel():
-            angle = dof[..., self._hinge_d]
+            angle = dof.index_select(-1, self._hinge_d)
             rot[..., self._hinge_j, :] = tu.quat_from_axis_angle(self._hinge_axis.to(dof), angle)
         if self._sph_j.numel():
             e = dof[..., self._sph_d]  # [..., S, 3]
@@ -162,11 +162,11 @@ class KinCharModel:
         batch = rot.shape[:-2]
         dof = torch.zeros(*batch, self.dof_size, dtype=rot.dtype, device=rot.device)
         if self._hinge_j.numel():
-            q = tu.quat_pos(rot[..., self._hinge_j, :])
+            q = tu.quat_pos(rot.index_select(-2, self._hinge_j))
             proj = (q[..., :3] * self._hinge_axis.to(rot)).sum(-1)
             dof[..., self._hinge_d] = 2.0 * torch.atan2(proj, q[..., 3])
         if self._sph_j.numel():
-            dof[..., self._sph_d] = tu.quat_to_exp_map(rot[..., self._sph_j, :])
+            dof[..., self._sph_d] = tu.quat_to_exp_map(rot.index_select(-2, self._sph_j))
         return dof
 
     def forward_kinematics(
@@ -182,11 +182,11 @@ class KinCharModel:
         local_rot = tu.quat_mul(local_rot, joint_rot)  # [..., J-1, 4]
         # Bodies of one tree depth depend only on shallower ones: one batched update per depth level.
         for ids, parents, joints in self._fk_levels:
-            rot[..., ids, :] = tu.quat_mul(rot[..., parents, :], local_rot[..., joints, :])
+            rot[..., ids, :] = tu.quat_mul(rot.index_select(-2, parents), local_rot.index_select(-2, joints))
         # A body's position is the root's plus its ancestors' rotated offsets: all offsets rotated at once,
         # then summed along each body's path with one matrix product (no per-level position updates).
-        steps = tu.quat_rotate(rot[..., self._fk_parents, :], offsets)  # [..., J-1, 3]
-        pos = root_pos.unsqueeze(-2) + paths @ steps
+        steps = tu.quat_rotate(rot.index_select(-2, self._fk_parents), offsets)  # [..., J-1, 3]
+        pos = root_pos.unsqueeze(-2) + torch.einsum("ij,...jk->...ik", paths, steps)
         return pos, rot
 
     def compute_dof_vel(self, rot0: torch.Tensor, rot1: torch.Tensor, dt: float) -> torch.Tensor:

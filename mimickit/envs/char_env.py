@@ -134,7 +134,7 @@ class CharEnv(SimEnv):
             "joint_rot": e.get_joint_rot(c),
         }
         if env_ids is not None:
-            state = {k: v[env_ids] for k, v in state.items()}
+            state = {k: v.index_select(0, env_ids) for k, v in state.items()}
         return state
 
     def _compute_obs(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
@@ -146,7 +146,7 @@ class CharEnv(SimEnv):
             s["root_ang_vel"],
             s["joint_rot"],
             s["dof_vel"],
-            s["body_pos"][:, self._key_body_ids],
+            s["body_pos"].index_select(1, self._key_body_ids),
             self.config.global_obs,
             self.config.root_height_obs,
         )

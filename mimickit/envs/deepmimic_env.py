@@ -66,6 +66,7 @@ class DeepMimicEnv(CharEnv):
         contact = [char.get_body_id(b) for b in config.contact_bodies]
         self._non_contact = torch.ones(char.get_num_joints(), dtype=torch.bool, device=dev)
         self._non_contact[contact] = False
+        self._non_contact_ids = torch.nonzero(self._non_contact).flatten()
         self._reward_weights = {t: getattr(config, f"reward_{t}_w") for t in TERM_NAMES}
         self._reward_scales = {t: getattr(config, f"reward_{t}_scale") for t in TERM_NAMES}
         steps = config.tar_obs_steps if config.enable_tar_obs else []
@@ -87,7 +88,7 @@ class DeepMimicEnv(CharEnv):
 
     def get_motion_time(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
         t = self._time_buf + self._motion_time_offsets
-        return t if env_ids is None else t[env_ids]
+        return t if env_ids is None else t.index_select(0, env_ids)
 
     def get_ref_state(self) -> dict[str, torch.Tensor]:
         """The reference at the current motion time: root_pos [N,3], root_rot [N,4], joint_rot [N,J-1,4],
@@ -118,7 +119,8 @@ class DeepMimicEnv(CharEnv):
         """The clip at `times` [n] + steps × dt with one MotionLib call and one FK: {key: [n, len(steps), ...]}."""
         n, s = len(env_ids), len(steps)
         all_times = (times.unsqueeze(-1) + self._engine.get_timestep() * steps).flatten()
-        f = self._motion_lib.calc_motion_frame(self._motion_ids[env_ids].repeat_interleave(s), all_times)
+        ids = self._motion_ids.index_select(0, env_ids).repeat_interleave(s)
+        f = self._motion_lib.calc_motion_frame(ids, all_times)
         body_pos, body_rot = self._char_model.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
         values = {
             "root_pos": f.root_pos, "root_rot": f.root_rot, "root_vel": f.root_vel, "root_ang_vel": f.root_ang_vel,
@@ -160,10 +162,9 @@ class DeepMimicEnv(CharEnv):
 
     def _pose_ref_char(self, env_ids: torch.Tensor) -> None:
         e, c = self._engine, self._ref_char_id
-        e.set_root_state(
-            env_ids, c, self._ref["root_pos"][env_ids] + self._ref_char_offset, self._ref["root_rot"][env_ids], 0.0, 0.0
-        )
-        e.set_joint_rot(env_ids, c, self._ref["joint_rot"][env_ids])
+        ref = {k: self._ref[k].index_select(0, env_ids) for k in ("root_pos", "root_rot", "joint_rot")}
+        e.set_root_state(env_ids, c, ref["root_pos"] + self._ref_char_offset, ref["root_rot"], 0.0, 0.0)
+        e.set_joint_rot(env_ids, c, ref["joint_rot"])
         e.set_dof_vel(env_ids, c, 0.0)
 
     # ---------------------------------------------------------------- resets
@@ -174,13 +175,12 @@ class DeepMimicEnv(CharEnv):
         self._motion_ids[env_ids] = ids
         self._motion_time_offsets[env_ids] = times
         self._eval_ref(env_ids, times)
-        e, c, ref = self._engine, self._char_id, self._ref
-        e.set_root_state(
-            env_ids, c, ref["root_pos"][env_ids], ref["root_rot"][env_ids], ref["root_vel"][env_ids],
-            ref["root_ang_vel"][env_ids],
-        )  # fmt: skip
-        e.set_joint_rot(env_ids, c, ref["joint_rot"][env_ids])
-        e.set_dof_vel(env_ids, c, ref["dof_vel"][env_ids])
+        e, c = self._engine, self._char_id
+        keys = ("root_pos", "root_rot", "root_vel", "root_ang_vel", "joint_rot", "dof_vel")
+        ref = {k: self._ref[k].index_select(0, env_ids) for k in keys}
+        e.set_root_state(env_ids, c, ref["root_pos"], ref["root_rot"], ref["root_vel"], ref["root_ang_vel"])
+        e.set_joint_rot(env_ids, c, ref["joint_rot"])
+        e.set_dof_vel(env_ids, c, ref["dof_vel"])
         if self._enable_ref_char:
             self._pose_ref_char(env_ids)
 
@@ -200,7 +200,7 @@ class DeepMimicEnv(CharEnv):
     def _compute_obs(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
         obs = [super()._compute_obs(env_ids)]
         if self.config.enable_phase_obs:
-            ids = self._motion_ids if env_ids is None else self._motion_ids[env_ids]
+            ids = self._motion_ids if env_ids is None else self._motion_ids.index_select(0, env_ids)
             phase = self._motion_lib.calc_motion_phase(ids, self.get_motion_time(env_ids))
             obs.append(compute_phase_obs(phase, self.config.num_phase_encoding))
         if self.config.enable_tar_obs:
@@ -210,10 +210,10 @@ class DeepMimicEnv(CharEnv):
     def _compute_tar_obs(self, env_ids: torch.Tensor | None) -> torch.Tensor:
         """Target frames from the buffers `_eval_ref` filled for the current motion time (all envs: the
         buffers themselves, no copy, and the pose features `_update_clock` computed during the physics)."""
-        tar = self._tar if env_ids is None else {k: v[env_ids] for k, v in self._tar.items()}
+        tar = self._tar if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._tar.items()}
         if self.config.global_obs:
             root_pos = self._engine.get_root_pos(self._char_id)
-            ref_pos = root_pos if env_ids is None else root_pos[env_ids]
+            ref_pos = root_pos if env_ids is None else root_pos.index_select(0, env_ids)
         else:
             ref_pos = tar["root_pos"][:, 0]
         ref_rot = tar["root_rot"][:, 0]
@@ -224,18 +224,18 @@ class DeepMimicEnv(CharEnv):
     def _tar_pose(self, tar: dict[str, torch.Tensor]) -> torch.Tensor:
         return compute_tar_pose_obs(
             tar["root_rot"][:, 0], tar["root_pos"], tar["root_rot"], tar["joint_rot"],
-            tar["body_pos"][:, :, self._key_body_ids], self.config.global_obs,
+            tar["body_pos"].index_select(2, self._key_body_ids), self.config.global_obs,
         )  # fmt: skip
 
     def _sim_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         s = self._char_state(env_ids)
-        s["key_pos"] = s["body_pos"][:, self._key_body_ids]
+        s["key_pos"] = s["body_pos"].index_select(1, self._key_body_ids)
         return s
 
     def _update_info(self, env_ids: torch.Tensor | None = None) -> None:
         sim = self._sim_state(env_ids)
-        ref = self._ref if env_ids is None else {k: v[env_ids] for k, v in self._ref.items()}
-        ref = dict(ref, key_pos=ref["body_pos"][:, self._key_body_ids])
+        ref = self._ref if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._ref.items()}
+        ref = dict(ref, key_pos=ref["body_pos"].index_select(1, self._key_body_ids))
         terms = compute_reward_terms(
             sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
             self.config.root_height_obs,
@@ -283,7 +283,7 @@ class DeepMimicEnv(CharEnv):
     def _fallen(self) -> torch.Tensor:
         if not self.config.contact_bodies:
             return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        forces = self._engine.get_ground_contact_forces(self._char_id)[:, self._non_contact]
+        forces = self._engine.get_ground_contact_forces(self._char_id).index_select(1, self._non_contact_ids)
         return (forces.abs() > CONTACT_FORCE_THRESHOLD).any(-1).any(-1)
 
     def _pose_failed(self) -> torch.Tensor:

@@ -91,6 +91,10 @@ class SimEnv(BaseEnv):
     def reset(self, env_ids: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, Any]]:
         if env_ids is None:
             env_ids = torch.arange(self.num_envs, device=self.device)
+        elif env_ids.dtype == torch.bool:
+            env_ids = torch.nonzero(env_ids).flatten()
+        elif env_ids.dtype != torch.long or env_ids.dim() != 1:  # the envs index with index_select: 1-D long
+            env_ids = env_ids.to(torch.long).reshape(-1)
         if len(env_ids) > 0:
             with _one_torch_thread(), self.profiler.phase("reset"):
                 self._reset_envs(env_ids)
