@@ -2,8 +2,10 @@
 
 Reference-state initialisation from the MotionLib, observations with target frames ahead, the
 five-term imitation reward (`deepmimic_rewards`), early termination on ground contact of non-contact
-bodies and on pose deviation. `info["reward_terms"]` holds each unweighted term [N] and
-`info["tracking"]` the tracking errors [N].
+bodies and on pose deviation. `info["reward_terms"]` holds each unweighted term [N] of the last step's
+reward and `info["tracking"]` the tracking errors [N]. A reset updates the tracking errors of its envs
+(TEST mode records them, as the reference does) but not their reward terms: like the reward buffer,
+those describe the step that ended the episode until the env steps again.
 """
 
 from __future__ import annotations
@@ -236,14 +238,15 @@ class DeepMimicEnv(CharEnv):
         sim = self._sim_state(env_ids)
         ref = self._ref if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._ref.items()}
         ref = dict(ref, key_pos=ref["body_pos"].index_select(1, self._key_body_ids))
-        terms = compute_reward_terms(
-            sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
-            self.config.root_height_obs,
-        )  # fmt: skip
+        if env_ids is None:
+            terms = compute_reward_terms(
+                sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
+                self.config.root_height_obs,
+            )  # fmt: skip
+            self._store_info("reward_terms", terms, env_ids)
         tracking = tracking_errors(sim, ref)
         if env_ids is None:
             self._last_sim = sim
-        self._store_info("reward_terms", terms, env_ids)
         self._store_info("tracking", tracking, env_ids)
         if self._mode == EnvMode.TEST:  # always: `mimickit test` reports it whatever the yaml says
             self._record_tracking(tracking)
