@@ -141,7 +141,15 @@ class DeepMimicEnv(CharEnv):
             self._frames[k][env_ids] = v
 
     def _alloc_frames(self, like: dict[str, torch.Tensor]) -> None:
-        self._frames = {k: torch.zeros(self.num_envs, *v.shape[1:], device=self.device) for k, v in like.items()}
+        """One buffer [N, S, F] holds every key side by side (`_frames[k]` are views into it), so that the
+        per-step shift is one copy instead of one per key."""
+        n, s = self.num_envs, len(self._ref_steps)
+        sizes = {k: v[0, 0].numel() for k, v in like.items()}
+        self._packed_frames = torch.zeros(n, s, sum(sizes.values()), device=self.device)
+        self._frames, offset = {}, 0
+        for k, v in like.items():
+            self._frames[k] = self._packed_frames[..., offset : offset + sizes[k]].view(n, s, *v.shape[2:])
+            offset += sizes[k]
         self._ref = {k: v[:, 0] for k, v in self._frames.items()}
         self._tar = {k: self._frames[k][:, 1:] for k in ("root_pos", "root_rot", "joint_rot", "body_pos")}
         s = len(self._ref_steps)
@@ -154,8 +162,9 @@ class DeepMimicEnv(CharEnv):
             self._eval_ref(self._all_env_ids, self.get_motion_time())
             return
         newest = self._eval_frames(self._all_env_ids, self.get_motion_time(), self._ref_steps[-1:])
+        packed = self._packed_frames
+        packed[:, :-1] = packed[:, 1:].clone()
         for k, buf in self._frames.items():
-            buf[:, :-1] = buf[:, 1:].clone()
             buf[:, -1:] = newest[k]
 
     def _ref_each_step(self) -> bool:
@@ -279,9 +288,9 @@ class DeepMimicEnv(CharEnv):
         motion_time = self.get_motion_time()
         clamp = self._motion_lib.get_motion_loop_mode(self._motion_ids) != LoopMode.WRAP
         finished = clamp & (motion_time >= self._motion_lib.get_motion_length(self._motion_ids))
-        done[finished] = DoneFlags.SUCC
+        done.masked_fill_(finished, int(DoneFlags.SUCC))
         if self.config.enable_early_termination:
-            done[self._fallen() | self._pose_failed()] = DoneFlags.FAIL
+            done.masked_fill_(self._fallen() | self._pose_failed(), int(DoneFlags.FAIL))
 
     def _fallen(self) -> torch.Tensor:
         if not self.config.contact_bodies:
