@@ -138,7 +138,7 @@ class DeepMimicEnv(CharEnv):
         if not self._frames:
             self._alloc_frames(frames)
         for k, v in frames.items():
-            self._frames[k][env_ids] = v
+            self._frames[k].index_copy_(0, env_ids, v)
 
     def _alloc_frames(self, like: dict[str, torch.Tensor]) -> None:
         """One buffer [N, S, F] holds every key side by side (`_frames[k]` are views into it), so that the
@@ -183,8 +183,8 @@ class DeepMimicEnv(CharEnv):
         lib = self._motion_lib
         ids = lib.sample_motions(len(env_ids)).to(self.device)
         times = lib.sample_time(ids) if self.config.rand_reset else torch.zeros(len(env_ids), device=self.device)
-        self._motion_ids[env_ids] = ids
-        self._motion_time_offsets[env_ids] = times
+        self._motion_ids.index_copy_(0, env_ids, ids)
+        self._motion_time_offsets.index_copy_(0, env_ids, times)
         self._eval_ref(env_ids, times)
         e, c = self._engine, self._char_id
         keys = ("root_pos", "root_rot", "root_vel", "root_ang_vel", "joint_rot", "dof_vel")
@@ -269,7 +269,7 @@ class DeepMimicEnv(CharEnv):
             if env_ids is None:
                 buf[k][:] = v
             else:
-                buf[k][env_ids] = v
+                buf[k].index_copy_(0, env_ids, v)
 
     def _record_tracking(self, tracking: dict[str, torch.Tensor]) -> None:
         if not hasattr(self, "_tracking_sum"):

@@ -99,7 +99,7 @@ class SimEnv(BaseEnv):
             with _one_torch_thread(), self.profiler.phase("reset"):
                 self._reset_envs(env_ids)
                 with self._frozen_state():
-                    self._obs_buf[env_ids] = self._compute_obs(env_ids)
+                    self._obs_buf.index_copy_(0, env_ids, self._compute_obs(env_ids))
                     self._update_info(env_ids)
         return self._obs_buf, self._info
 
@@ -135,9 +135,9 @@ class SimEnv(BaseEnv):
 
     # ------------------------------------------------------------- internals
     def _reset_envs(self, env_ids: torch.Tensor) -> None:
-        self._timestep_buf[env_ids] = 0
-        self._time_buf[env_ids] = 0.0
-        self._done_buf[env_ids] = DoneFlags.NULL
+        self._timestep_buf.index_fill_(0, env_ids, 0)
+        self._time_buf.index_fill_(0, env_ids, 0.0)
+        self._done_buf.index_fill_(0, env_ids, int(DoneFlags.NULL))
 
     @abc.abstractmethod
     def _apply_action(self, action: torch.Tensor) -> None: ...
