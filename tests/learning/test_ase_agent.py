@@ -138,6 +138,11 @@ def test_agent_enc_reward_and_losses_match_the_functions(agent: ASEAgent):
     d_z = 0.5 - 0.5 * (new_z * z).sum(-1)
     expected = (1.0 - d_a / (d_z + 1e-5)).square().mean()
     assert div.item() == pytest.approx(expected.item(), rel=1e-5)
+    # The loss reaches the actor: its gradient moves the actor's weights (none detached on the way).
+    agent._model.zero_grad()
+    div.backward()
+    grads = [p.grad for p in agent._model.parameters() if p.grad is not None]
+    assert grads and sum(float(g.abs().sum()) for g in grads) > 0.0
 
 
 def test_env_reports_the_enc_reward_of_the_current_latents(agent: ASEAgent):
