@@ -170,21 +170,14 @@ class MotionLib:
         return phase * length
 
     def calc_motion_phase(self, ids: torch.Tensor, times: torch.Tensor) -> torch.Tensor:
-        length = _rows(self._length, ids)
-        phase = times / length.clamp_min(1e-8)
-        wrap = _rows(self._loop_mode, ids) == LoopMode.WRAP
-        phase = torch.where(wrap, phase - torch.floor(phase), phase)
-        return phase.clamp(0.0, 1.0)
+        return self._phase_and_cycles(ids, times)[0]
 
     def calc_motion_frame(self, ids: torch.Tensor, times: torch.Tensor) -> MotionFrame:
-        i0, i1, blend = self._frame_blend(ids, times)
+        i0, i1, blend, cycles = self._frame_blend(ids, times)
         b = blend.unsqueeze(-1)
         root_pos = (1.0 - b) * _rows(self.root_pos, i0) + b * _rows(self.root_pos, i1)
         rots = tu.slerp(_rows(self._rots, i0), _rows(self._rots, i1), b.unsqueeze(-1))
         root_rot, joint_rot = rots[:, 0], rots[:, 1:]
-        length = _rows(self._length, ids)
-        cycles = torch.floor(times / length.clamp_min(1e-8))
-        cycles = torch.where(_rows(self._loop_mode, ids) == LoopMode.WRAP, cycles, torch.zeros_like(cycles))
         root_pos = root_pos + cycles.unsqueeze(-1) * _rows(self._wrap_delta, ids)
         vel, ang_vel, dof_vel = (_rows(t, i0) for t in (self.root_vel, self.root_ang_vel, self.dof_vel))
         return MotionFrame(root_pos, root_rot, vel, ang_vel, joint_rot, dof_vel)
@@ -192,15 +185,26 @@ class MotionLib:
     def joint_rot_to_dof(self, joint_rot: torch.Tensor) -> torch.Tensor:
         return self.char_model.rot_to_dof(joint_rot)
 
-    def _frame_blend(self, ids: torch.Tensor, times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        phase = self.calc_motion_phase(ids, times)
+    def _phase_and_cycles(self, ids: torch.Tensor, times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The phase in [0, 1] (t / length; a WRAP clip's fractional part) and the completed cycles (WRAP
+        clips; 0 for the others)."""
+        raw = times / _rows(self._length, ids).clamp_min(1e-8)
+        wrap = _rows(self._loop_mode, ids) == LoopMode.WRAP
+        cycles = torch.where(wrap, torch.floor(raw), 0.0)
+        return (raw - cycles).clamp(0.0, 1.0), cycles
+
+    def _frame_blend(
+        self, ids: torch.Tensor, times: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Global frame indices i0, i1, the blend between them and the completed cycles."""
+        phase, cycles = self._phase_and_cycles(ids, times)
         nf = _rows(self._num_frames, ids)
         f = phase * (nf - 1).float()
         i0 = torch.clamp(f.long(), max=nf - 1)
         i1 = torch.minimum(i0 + 1, nf - 1)
         blend = (f - i0.float()).clamp(0.0, 1.0)
         start = _rows(self._start, ids)
-        return start + i0, start + i1, blend
+        return start + i0, start + i1, blend, cycles
 
 
 def _rows(table: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
