@@ -65,10 +65,9 @@ class DeepMimicEnv(CharEnv):
             )
         self._joint_err_w = torch.tensor(joint_err_w, dtype=torch.float32, device=dev)
         self._dof_err_w = self._joint_err_w[torch.as_tensor(char.dof_joint_ids(), device=dev)]
-        contact = [char.get_body_id(b) for b in config.contact_bodies]
-        self._non_contact = torch.ones(char.get_num_joints(), dtype=torch.bool, device=dev)
-        self._non_contact[contact] = False
-        self._non_contact_ids = torch.nonzero(self._non_contact).flatten()
+        contact = {char.get_body_id(b) for b in config.contact_bodies}
+        non_contact = [b for b in range(char.get_num_joints()) if b not in contact]
+        self._non_contact_ids = torch.tensor(non_contact, dtype=torch.long, device=dev)
         self._reward_weights = {t: getattr(config, f"reward_{t}_w") for t in TERM_NAMES}
         self._reward_scales = {t: getattr(config, f"reward_{t}_scale") for t in TERM_NAMES}
         steps = config.tar_obs_steps if config.enable_tar_obs else []
@@ -152,7 +151,6 @@ class DeepMimicEnv(CharEnv):
             offset += sizes[k]
         self._ref = {k: v[:, 0] for k, v in self._frames.items()}
         self._tar = {k: self._frames[k][:, 1:] for k in ("root_pos", "root_rot", "joint_rot", "body_pos")}
-        s = len(self._ref_steps)
         self._can_shift = bool(torch.equal(self._ref_steps, torch.arange(s, dtype=self._ref_steps.dtype)))
 
     def _advance_ref(self) -> None:
@@ -247,15 +245,14 @@ class DeepMimicEnv(CharEnv):
         sim = self._sim_state(env_ids)
         ref = self._ref if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._ref.items()}
         ref = dict(ref, key_pos=ref["body_pos"].index_select(1, self._key_body_ids))
-        if env_ids is None:
+        if env_ids is None:  # a step: its reward terms, and the state pose termination reads
             terms = compute_reward_terms(
                 sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
                 self.config.root_height_obs,
             )  # fmt: skip
             self._store_info("reward_terms", terms, env_ids)
-        tracking = tracking_errors(sim, ref)
-        if env_ids is None:
             self._last_sim = sim
+        tracking = tracking_errors(sim, ref)
         self._store_info("tracking", tracking, env_ids)
         if self._mode == EnvMode.TEST:  # always: `mimickit test` reports it whatever the yaml says
             self._record_tracking(tracking)

@@ -112,10 +112,10 @@ def quat_angle(q: torch.Tensor) -> torch.Tensor:
 
 
 def quat_diff_angle(q0: torch.Tensor, q1: torch.Tensor) -> torch.Tensor:
-    """Angle in [0, π] of the rotation between q0 and q1 (any norms: both parts of q1 ⊗ q0* scale alike,
-    their ratio decides): that of q1 ⊗ q0*, whose scalar part is the
-    4-vector dot product q0·q1 and whose vector part is w0 v1 − w1 v0 − v1 × v0 (written out: the rewards
-    and tracking errors take this for every joint of every env each step)."""
+    """Angle in [0, π] of the rotation between q0 and q1, for any norms (only the ratio of the parts of
+    q1 ⊗ q0* counts). That product is written out: its scalar part is the 4-vector dot product q0·q1 and
+    its vector part w0 v1 − w1 v0 − v1 × v0 (the rewards and tracking errors take this for every joint of
+    every env each step)."""
     v0, w0 = q0[..., :3], q0[..., 3:]
     v1, w1 = q1[..., :3], q1[..., 3:]
     w = (q0 * q1).sum(-1)
