@@ -13,7 +13,7 @@ import torch
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.engines.engine import ControlMode, EngineConfig, ObjType
 from mimickit.engines.engine_builder import build_engine
-from mimickit.engines.mujoco_engine import SMALL_CHUNK, MujocoEngine
+from mimickit.engines.mujoco_engine import MujocoEngine, _guided_chunks
 from mimickit.util import torch_util as tu
 from mimickit.util.config import load_config
 from mimickit.util.errors import MimicKitError
@@ -337,9 +337,11 @@ def test_threaded_stepping_equals_one_thread(humanoid_xml):
 
 
 def test_concurrent_work_runs_once_per_step_and_leaves_the_physics_unchanged(humanoid_xml):
-    """step(concurrent=fn): fn runs on the calling thread while the worker takes small chunks of envs;
-    every env ends bit-identical to a plain step, and an error in fn surfaces after the workers finish."""
-    n = 2 * SMALL_CHUNK + 3  # several chunks, the last one short
+    """step(concurrent=fn): fn runs on the calling thread while the worker takes chunks of envs; every env
+    ends bit-identical to a plain step, and an error in fn surfaces after the workers finish."""
+    n = 37
+    sizes = [c.stop - c.start for c in _guided_chunks(n, 2)]
+    assert sum(sizes) == n and sizes == sorted(sizes, reverse=True) and sizes[-1] == 1  # big first, single last
     engines = []
     for _ in range(2):
         cfg = EngineConfig(engine_name="mujoco", control_mode="pos", control_freq=30, sim_freq=240, env_spacing=5,
