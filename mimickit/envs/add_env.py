@@ -75,7 +75,10 @@ class ADDEnv(AMPEnv):
 
     def _update_tracking(self, env_ids: torch.Tensor | None) -> None:
         """DeepMimic's tracking errors into `info["tracking"]` (TEST mode: into the means `mimickit test`
-        reports); keeps the live state for the pose termination test."""
+        reports); keeps the live state for the pose termination test. At a reset only in TEST mode, as
+        DeepMimic's `_update_info`."""
+        if env_ids is not None and self._mode != EnvMode.TEST:
+            return
         sim = self._sim_state(env_ids)
         ref = self._ref if env_ids is None else {k: v[env_ids] for k, v in self._ref.items()}
         tracking = tracking_errors(sim, ref)

@@ -98,6 +98,7 @@ class CharEnv(SimEnv):
         self._reset_char(env_ids)
 
     def _reset_char(self, env_ids: torch.Tensor) -> None:
+        self._drop_preset_states()  # what an earlier reset step set for some of these envs is overwritten
         n = len(env_ids)
         e, c = self._engine, self._char_id
         e.set_root_state(env_ids, c, self._init_root_pos.expand(n, -1), self._init_root_rot.expand(n, -1), 0.0, 0.0)
@@ -119,6 +120,16 @@ class CharEnv(SimEnv):
         if key not in self._state_cache:  # the entry keeps env_ids alive, so its id is not reused meanwhile
             self._state_cache[key] = (env_ids, self._read_char_state(env_ids))
         return dict(self._state_cache[key][1])
+
+    def _preset_char_state(self, env_ids: torch.Tensor, state: dict[str, torch.Tensor]) -> None:
+        """Record the character state a reset has just set for `env_ids` (the `_char_state` keys but
+        `dof_pos`), so that the reset's observations and info read it rather than the engine: the engine
+        would recompute the same (to float rounding) with a kinematics pass for those envs, which the next
+        step does anyway. Only `_char_state(env_ids)` with this very tensor sees it, until the reset ends."""
+        self._state_cache[("char", id(env_ids))] = (env_ids, state)
+
+    def _drop_preset_states(self) -> None:
+        self._state_cache.clear()
 
     def _read_char_state(self, env_ids: torch.Tensor | None) -> dict[str, torch.Tensor]:
         e, c = self._engine, self._char_id

@@ -185,11 +185,11 @@ class DeepMimicEnv(CharEnv):
         self._motion_time_offsets.index_copy_(0, env_ids, times)
         self._eval_ref(env_ids, times)
         e, c = self._engine, self._char_id
-        keys = ("root_pos", "root_rot", "root_vel", "root_ang_vel", "joint_rot", "dof_vel")
-        ref = {k: self._ref[k].index_select(0, env_ids) for k in keys}
+        ref = {k: v.index_select(0, env_ids) for k, v in self._ref.items()}
         e.set_root_state(env_ids, c, ref["root_pos"], ref["root_rot"], ref["root_vel"], ref["root_ang_vel"])
         e.set_joint_rot(env_ids, c, ref["joint_rot"])
         e.set_dof_vel(env_ids, c, ref["dof_vel"])
+        self._preset_char_state(env_ids, ref)  # the state just set, with its FK bodies: the reference frame
         if self._enable_ref_char:
             self._pose_ref_char(env_ids)
 
@@ -242,6 +242,10 @@ class DeepMimicEnv(CharEnv):
         return s
 
     def _update_info(self, env_ids: torch.Tensor | None = None) -> None:
+        if env_ids is not None and self._mode != EnvMode.TEST:
+            # A reset in training: the agents read info after a step, and the reference records tracking
+            # at reset only in TEST mode (spec 5.3); the reset envs keep the last step's values.
+            return
         sim = self._sim_state(env_ids)
         ref = self._ref if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._ref.items()}
         ref = dict(ref, key_pos=ref["body_pos"].index_select(1, self._key_body_ids))

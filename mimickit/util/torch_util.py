@@ -167,10 +167,12 @@ def slerp(q0: torch.Tensor, q1: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     ra = torch.sin((1.0 - t) * half) / safe
     rb = torch.sin(t * half) / safe
     out = ra * q0 + rb * q1
-    # Near-parallel quaternions: the ratio is ill-conditioned, a normalised lerp is exact enough.
+    # Near-parallel quaternions: the ratio is ill-conditioned, a (normalised) lerp is exact enough.
     near = sin_half < 1e-3
-    lerp = quat_normalize((1.0 - t) * q0 + t * q1)
-    out = torch.where(near, lerp, out)
+    out = torch.where(near, (1.0 - t) * q0 + t * q1, out)
+    # Normalised in both cases: between close frames acos/sqrt in float32 leave |out| off 1 by up to
+    # ~4e-5 (measured on a clip), which a state set from the frame would not share.
+    out = quat_normalize(out)
     return torch.where(cos_half >= 1.0, q0, out)
 
 

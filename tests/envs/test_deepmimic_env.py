@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from mimickit.envs.base_env import DoneFlags
+from mimickit.envs.base_env import DoneFlags, EnvMode
 from mimickit.envs.char_env import CharEnv
 from mimickit.envs.deepmimic_env import DeepMimicEnv
 from mimickit.envs.env_builder import build_env
@@ -44,8 +44,7 @@ def test_observation_and_action_sizes():
 def test_reference_state_scores_one():
     env = make(DEEPMIMIC, num_envs=8)
     _, info = env.reset()
-    assert info["tracking"]["body_pos_err"].max() < 1e-4  # a reset records tracking, not reward terms
-    env._update_info()  # the terms a step computes after its physics, here for the reset state itself
+    env._update_info()  # what a step computes after its physics, here for the reset state (read from the engine)
     terms = info["reward_terms"]
     assert set(terms) == {"pose", "vel", "root_pose", "root_vel", "key_pos"}
     for name, value in terms.items():
@@ -182,3 +181,44 @@ def test_step_observation_equals_one_computed_afresh(global_obs):
         if i == 2:
             env.reset(torch.tensor([0, 4]))
             assert env._tar_pose_obs is None  # the reset envs' frames changed: recomputed at the next step
+
+
+@pytest.mark.parametrize("global_obs", [False, True])
+def test_reset_observation_is_the_engine_state_observed(global_obs):
+    """A reset observes the state it set (the reference frame) without asking the engine, which then
+    pushes the edit at the next step without a kinematics pass: that observation must equal the one
+    computed from the engine's own state, and the step after the reset must be the same either way."""
+    envs = [make(DEEPMIMIC, num_envs=6, global_obs=global_obs) for _ in range(2)]
+    gen = torch.Generator().manual_seed(4)
+    low, high = (torch.as_tensor(b) for b in (envs[0].get_action_space().low, envs[0].get_action_space().high))
+    for env in envs:
+        torch.manual_seed(0)  # the same reset samples
+        env.reset()
+    action = low + (high - low) * torch.rand(6, low.shape[0], generator=gen)
+    ids = torch.tensor([1, 3, 4])
+    for k, env in enumerate(envs):
+        env.step(action)
+        torch.manual_seed(1)
+        obs, _ = env.reset(ids)
+        if k == 1:  # read the engine: this syncs its kinematics for the reset envs before the next step
+            from_engine = env._compute_obs(ids)
+            torch.testing.assert_close(obs[ids], from_engine, atol=1e-5, rtol=0)
+    outs = [env.step(action) for env in envs]
+    for a, b in zip(outs[0][:3], outs[1][:3], strict=True):
+        assert torch.equal(a, b)  # obs, reward, done: the unread edit stepped exactly as the synced one
+
+
+def test_reset_records_tracking_in_test_mode_only():
+    env = make(DEEPMIMIC, num_envs=4)
+    env.reset()
+    env.step(env.engine.get_dof_pos(0).clone())
+    after_step = {k: v.clone() for k, v in env._info["tracking"].items()}
+    assert after_step["dof_vel_err"].min() > 0  # a step off the clip
+    _, info = env.reset(torch.tensor([0, 2]))
+    for k, v in info["tracking"].items():
+        assert torch.equal(v, after_step[k]), k  # training: the last step's values stay
+    env.set_mode(EnvMode.TEST)
+    _, info = env.reset(torch.tensor([0, 2]))
+    assert info["tracking"]["body_pos_err"][[0, 2]].max() < 1e-6  # the reset state is the reference
+    assert torch.equal(info["tracking"]["dof_vel_err"][[1, 3]], after_step["dof_vel_err"][[1, 3]])
+    assert env.tracking_summary()["body_pos_err"] < 1e-6  # and recorded, as the reference does in TEST mode
