@@ -10,6 +10,7 @@ those describe the step that ended the episode until the env steps again.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
@@ -27,6 +28,7 @@ from mimickit.util.errors import MimicKitError
 
 REF_CHAR_COLOR = (0.3, 0.5, 0.1)
 CONTACT_FORCE_THRESHOLD = 0.1  # N: any larger ground force on a non-contact body ends the episode
+ClipGroup = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # motion ids [n], times [n], steps [s] (× dt)
 
 
 class DeepMimicEnv(CharEnv):
@@ -76,6 +78,7 @@ class DeepMimicEnv(CharEnv):
         self._frames: dict[str, torch.Tensor] = {}
         self._tar_pose_obs: torch.Tensor | None = None  # valid from `_update_clock` until the frames change
         self._eval_ref(torch.arange(n, device=dev), self._motion_time_offsets)
+        self._build_reset_pool()
         self._ref_char_offset = torch.tensor(config.ref_char_offset, dtype=torch.float32, device=dev)
 
     # ---------------------------------------------------------------- public
@@ -116,22 +119,33 @@ class DeepMimicEnv(CharEnv):
     # env by one column, so when the steps are 0, 1, ..., S-1 the buffers shift and only the newest
     # column needs the MotionLib and FK: a quarter of the work for the humanoid's [1, 2, 3]. The
     # reference's dof_pos is not kept: only resets (and get_ref_state) need it, for the envs they touch.
-    def _eval_frames(self, env_ids: torch.Tensor, times: torch.Tensor, steps: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The clip at `times` [n] + steps × dt with one MotionLib call and one FK: {key: [n, len(steps), ...]}."""
-        n, s = len(env_ids), len(steps)
-        all_times = (times.unsqueeze(-1) + self._engine.get_timestep() * steps).flatten()
-        ids = self._motion_ids.index_select(0, env_ids).repeat_interleave(s)
-        f = self._motion_lib.calc_motion_frame(ids, all_times)
+    def _eval_clip(self, groups: list[ClipGroup]) -> list[dict[str, torch.Tensor]]:
+        """The clip for each group (motion ids [n], times [n], steps [s]) at times + steps × dt, all groups
+        with one MotionLib call and one FK (per-call costs dominate at these sizes): {key: [n, s, ...]} each."""
+        dt = self._engine.get_timestep()
+        ids = [m if len(st) == 1 else m.repeat_interleave(len(st)) for m, _, st in groups]
+        times = [(t.unsqueeze(-1) + dt * st).flatten() for _, t, st in groups]
+        ids, times = (ids[0], times[0]) if len(groups) == 1 else (torch.cat(ids), torch.cat(times))
+        f = self._motion_lib.calc_motion_frame(ids, times)
         body_pos, body_rot = self._char_model.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
         values = {
             "root_pos": f.root_pos, "root_rot": f.root_rot, "root_vel": f.root_vel, "root_ang_vel": f.root_ang_vel,
             "joint_rot": f.joint_rot, "dof_vel": f.dof_vel,
             "body_pos": body_pos, "body_rot": body_rot,
         }  # fmt: skip
-        return {k: v.view(n, s, *v.shape[1:]) for k, v in values.items()}
+        out, row = [], 0
+        for m, _, st in groups:
+            n, s = len(m), len(st)
+            out.append({k: v[row : row + n * s].view(n, s, *v.shape[1:]) for k, v in values.items()})
+            row += n * s
+        return out
+
+    def _eval_frames(self, env_ids: torch.Tensor, times: torch.Tensor, steps: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The clip of envs `env_ids` at `times` [n] + steps × dt: {key: [n, len(steps), ...]}."""
+        return self._eval_clip([(self._motion_ids.index_select(0, env_ids), times, steps)])[0]
 
     def _eval_ref(self, env_ids: torch.Tensor, times: torch.Tensor) -> None:
-        """Evaluate every column for `env_ids` (resets, first build)."""
+        """Evaluate every column for `env_ids` (the first build)."""
         self._tar_pose_obs = None
         frames = self._eval_frames(env_ids, times, self._ref_steps)
         if not self._frames:
@@ -153,17 +167,75 @@ class DeepMimicEnv(CharEnv):
         self._tar = {k: self._frames[k][:, 1:] for k in ("root_pos", "root_rot", "joint_rot", "body_pos")}
         self._can_shift = bool(torch.equal(self._ref_steps, torch.arange(s, dtype=self._ref_steps.dtype)))
 
-    def _advance_ref(self) -> None:
-        """All envs moved one control step on: shift the columns and evaluate only the newest."""
+    def _pack(self, frames: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Frames {key: [n, S, ...]} in the layout of `_packed_frames`: [n, S, F]."""
+        n, s = next(iter(frames.values())).shape[:2]
+        return torch.cat([frames[k].reshape(n, s, -1) for k in self._frames], dim=-1)
+
+    def _advance_ref(self, extra: ClipGroup | None = None) -> None:
+        """All envs moved one control step on: shift the columns and evaluate only the newest. `extra`, a
+        group of reset samples for the pool, is evaluated in the same call."""
         self._tar_pose_obs = None
-        if not self._can_shift or len(self._ref_steps) == 1:
-            self._eval_ref(self._all_env_ids, self.get_motion_time())
+        shift = self._can_shift and len(self._ref_steps) > 1
+        steps = self._ref_steps[-1:] if shift else self._ref_steps
+        groups = [(self._motion_ids, self.get_motion_time(), steps)] + ([extra] if extra is not None else [])
+        frames = self._eval_clip(groups)
+        if extra is not None:
+            self._add_to_pool(extra, frames[1])
+        if not shift:
+            for k, buf in self._frames.items():
+                buf.copy_(frames[0][k])
             return
-        newest = self._eval_frames(self._all_env_ids, self.get_motion_time(), self._ref_steps[-1:])
         packed = self._packed_frames
         packed[:, :-1] = packed[:, 1:].clone()
         for k, buf in self._frames.items():
-            buf[:, -1:] = newest[k]
+            buf[:, -1:] = frames[0][k]
+
+    # ------------------------------------------------------------ reset pool
+    # A reset state is the clip at a sampled (motion, time): it does not depend on the simulation. So the
+    # frames of the next resets are evaluated ahead, during the physics (`_update_clock`) and in the same
+    # MotionLib/FK call as the newest reference column, and a reset takes them from this pool (it samples
+    # and evaluates afresh only what the pool lacks). The pool holds about twice the recent resets per step.
+    def _build_reset_pool(self) -> None:
+        dev = self.device
+        self._pool_ids = torch.zeros(0, dtype=torch.long, device=dev)
+        self._pool_times = torch.zeros(0, device=dev)
+        self._pool_frames = self._packed_frames.new_zeros(0, *self._packed_frames.shape[1:])
+        self._reset_rate, self._resets_since_clock = 0.0, 0
+
+    def _sample_reset_states(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        lib = self._motion_lib
+        ids = lib.sample_motions(n).to(self.device)
+        times = lib.sample_time(ids) if self.config.rand_reset else torch.zeros(n, device=self.device)
+        return ids, times
+
+    def _pool_request(self) -> ClipGroup | None:
+        """New samples for the pool this step (motion ids, times, steps), or None when it holds enough."""
+        self._reset_rate = 0.9 * self._reset_rate + 0.1 * self._resets_since_clock
+        self._resets_since_clock = 0
+        need = min(self.num_envs, math.ceil(2.0 * self._reset_rate) + 2) - len(self._pool_ids)
+        return (*self._sample_reset_states(need), self._ref_steps) if need > 0 else None
+
+    def _add_to_pool(self, group: ClipGroup, frames: dict[str, torch.Tensor]) -> None:
+        self._pool_ids = torch.cat([self._pool_ids, group[0]])
+        self._pool_times = torch.cat([self._pool_times, group[1]])
+        self._pool_frames = torch.cat([self._pool_frames, self._pack(frames)])
+
+    def _draw_reset_states(self, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """n reset states: motion ids [n], times [n], packed frames [n, S, F]; from the pool first."""
+        self._resets_since_clock += n
+        take = min(n, len(self._pool_ids))
+        ids, times, frames = self._pool_ids[:take], self._pool_times[:take], self._pool_frames[:take]
+        self._pool_ids, self._pool_times, self._pool_frames = (
+            self._pool_ids[take:], self._pool_times[take:], self._pool_frames[take:]
+        )  # fmt: skip
+        if take == n:
+            return ids, times, frames
+        new_ids, new_times = self._sample_reset_states(n - take)
+        new_frames = self._pack(self._eval_clip([(new_ids, new_times, self._ref_steps)])[0])
+        if take == 0:
+            return new_ids, new_times, new_frames
+        return torch.cat([ids, new_ids]), torch.cat([times, new_times]), torch.cat([frames, new_frames])
 
     def _ref_each_step(self) -> bool:
         """Whether the reference is evaluated at every step (it is read by the reward or observations)."""
@@ -178,12 +250,11 @@ class DeepMimicEnv(CharEnv):
 
     # ---------------------------------------------------------------- resets
     def _reset_char(self, env_ids: torch.Tensor) -> None:
-        lib = self._motion_lib
-        ids = lib.sample_motions(len(env_ids)).to(self.device)
-        times = lib.sample_time(ids) if self.config.rand_reset else torch.zeros(len(env_ids), device=self.device)
+        ids, times, frames = self._draw_reset_states(len(env_ids))
         self._motion_ids.index_copy_(0, env_ids, ids)
         self._motion_time_offsets.index_copy_(0, env_ids, times)
-        self._eval_ref(env_ids, times)
+        self._packed_frames.index_copy_(0, env_ids, frames)
+        self._tar_pose_obs = None
         e, c = self._engine, self._char_id
         ref = {k: v.index_select(0, env_ids) for k, v in self._ref.items()}
         e.set_root_state(env_ids, c, ref["root_pos"], ref["root_rot"], ref["root_vel"], ref["root_ang_vel"])
@@ -196,10 +267,13 @@ class DeepMimicEnv(CharEnv):
     # ---------------------------------------------------------- per step
     def _update_clock(self) -> None:
         super()._update_clock()
+        pool_samples = self._pool_request()
         if self._ref_each_step():
-            self._advance_ref()
+            self._advance_ref(pool_samples)
             if self.config.enable_tar_obs:  # the clip alone decides them: computed while the physics runs
                 self._tar_pose_obs = self._tar_pose(self._tar)
+        elif pool_samples is not None:
+            self._add_to_pool(pool_samples, self._eval_clip([pool_samples])[0])
 
     def _update_misc(self) -> None:
         super()._update_misc()

@@ -191,14 +191,12 @@ def test_reset_observation_is_the_engine_state_observed(global_obs):
     envs = [make(DEEPMIMIC, num_envs=6, global_obs=global_obs) for _ in range(2)]
     gen = torch.Generator().manual_seed(4)
     low, high = (torch.as_tensor(b) for b in (envs[0].get_action_space().low, envs[0].get_action_space().high))
-    for env in envs:
-        torch.manual_seed(0)  # the same reset samples
-        env.reset()
     action = low + (high - low) * torch.rand(6, low.shape[0], generator=gen)
     ids = torch.tensor([1, 3, 4])
     for k, env in enumerate(envs):
+        torch.manual_seed(0)  # the same reset samples
+        env.reset()
         env.step(action)
-        torch.manual_seed(1)
         obs, _ = env.reset(ids)
         if k == 1:  # read the engine: this syncs its kinematics for the reset envs before the next step
             from_engine = env._compute_obs(ids)
@@ -222,3 +220,31 @@ def test_reset_records_tracking_in_test_mode_only():
     assert info["tracking"]["body_pos_err"][[0, 2]].max() < 1e-6  # the reset state is the reference
     assert torch.equal(info["tracking"]["dof_vel_err"][[1, 3]], after_step["dof_vel_err"][[1, 3]])
     assert env.tracking_summary()["body_pos_err"] < 1e-6  # and recorded, as the reference does in TEST mode
+
+
+def test_resets_take_their_states_from_the_pool_evaluated_ahead():
+    """The clock work evaluates reset states ahead (sampled motion and time, every target column); a reset
+    takes them from that pool, and samples and evaluates afresh what the pool lacks. Either way the env's
+    frames are the clip at its new motion time, and a state is used once."""
+    env = make(DEEPMIMIC, num_envs=8)
+    env.reset()  # 8 resets: the pool is sized from the recent reset rate
+    zeros = torch.zeros(8, env.get_action_space().shape[0])
+    env.step(zeros)
+    pooled = len(env._pool_ids)
+    assert pooled >= 2
+    head_times = env._pool_times[:2].clone()
+    env.reset(torch.tensor([2, 5]))  # from the pool
+    torch.testing.assert_close(env._motion_time_offsets[[2, 5]], head_times, atol=0, rtol=0)
+    assert len(env._pool_ids) == pooled - 2
+    env.reset(torch.arange(8))  # more than the pool holds: the rest sampled now
+    assert len(env._pool_ids) == 0
+    ids = torch.arange(8)
+    fresh = env._eval_frames(ids, env.get_motion_time(ids), env._ref_steps)
+    for k, v in fresh.items():
+        torch.testing.assert_close(env._frames[k], v, atol=0, rtol=0, msg=k)
+    assert len(set(env._motion_time_offsets.tolist())) == 8  # no state drawn twice
+    # Without random reset times every pooled state starts its clip.
+    still = make(DEEPMIMIC, num_envs=4, rand_reset=False)
+    still.reset()
+    still.step(torch.zeros(4, still.get_action_space().shape[0]))
+    assert len(still._pool_times) > 0 and still._pool_times.abs().max() == 0
