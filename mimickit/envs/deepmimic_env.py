@@ -3,9 +3,11 @@
 Reference-state initialisation from the MotionLib, observations with target frames ahead, the
 five-term imitation reward (`deepmimic_rewards`), early termination on ground contact of non-contact
 bodies and on pose deviation. `info["reward_terms"]` holds each unweighted term [N] of the last step's
-reward and `info["tracking"]` the tracking errors [N]. A reset updates the tracking errors of its envs
-(TEST mode records them, as the reference does) but not their reward terms: like the reward buffer,
-those describe the step that ended the episode until the env steps again.
+reward and `info["tracking"]` the tracking errors [N]. A reset leaves both as the last step's (like the
+reward buffer, they describe the step that ended the episode until the env steps again), except that in
+TEST mode it updates and records the tracking errors of its envs, as the reference does. A reset observes
+the state it set (the reference frame) without reading the engine back, and takes that frame from a pool
+evaluated ahead during the physics (see "reset pool").
 """
 
 from __future__ import annotations
