@@ -87,7 +87,10 @@ def _bench(args: argparse.Namespace) -> int:
     from mimickit.util.paths import set_data_dir
 
     set_data_dir(args.data_dir)
-    results = [run_bench(args.engine_config, args.env_config, n, args.steps, rounds=args.rounds) for n in args.num_envs]
+    results = [
+        run_bench(args.engine_config, args.env_config, n, args.steps, rounds=args.rounds, raw_mode=args.raw)
+        for n in args.num_envs
+    ]
     if args.json:
         print(json.dumps(results[0] if len(results) == 1 else results))
     else:
@@ -199,6 +202,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--steps", type=int, default=100, help="control steps measured per env count")
     bench.add_argument(
         "--rounds", type=int, default=5, help="env and raw measurements alternate this many times (noisy machines)"
+    )
+    bench.add_argument(
+        "--raw",
+        choices=["free", "replay"],
+        default="free",
+        help="raw baseline: rollout on its own copies of the states with zero controls (free), or re-running each "
+        "timed env step from the same state, warm start and controls (replay)",
     )
     bench.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
     bench.add_argument("--json", action="store_true", help="print JSON (one object, or a list for several counts)")

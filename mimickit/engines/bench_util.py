@@ -49,6 +49,21 @@ class RawRollout:
         self.state[:] = self._out[:, -1]
         return time.perf_counter() - start
 
+    def replay(self, state: np.ndarray, warmstart: np.ndarray, ctrl: np.ndarray) -> float:
+        """Advance the given states [N, nstate] (warm starts [N, nv]) `substeps` steps holding ctrl [N, nu],
+        leaving `self.state` alone; returns the seconds it took."""
+        ctrl = np.ascontiguousarray(ctrl[:, None, :], dtype=np.float64)
+        start = time.perf_counter()
+        self._rollout.rollout(
+            self.model, self._scratch, state, ctrl, nstep=self.substeps, initial_warmstart=warmstart, state=self._out
+        )
+        return time.perf_counter() - start
+
+    @property
+    def last_state(self) -> np.ndarray:
+        """[N, nstate]: the states after the last call."""
+        return self._out[:, -1]
+
     def close(self) -> None:
         self._rollout.close()
 

@@ -895,6 +895,25 @@ class MujocoEngine(Engine):
             return np.arange(self._num_envs)
         return np.asarray(_to_numpy(env_ids), dtype=np.int64).reshape(-1)
 
+    # ------------------------------------------------------------------ replay (benchmarks)
+    def physics_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """What each env's next step starts from, to replay it elsewhere (`mujoco.rollout`): full-physics
+        states [N, nstate] (setter edits not yet pushed included) and solver warm starts [N, nv]."""
+        m, spec = self.mj_model, mujoco.mjtState.mjSTATE_FULLPHYSICS
+        state = np.empty((self._num_envs, mujoco.mj_stateSize(m, spec)))
+        for i, d in enumerate(self.mj_datas):
+            mujoco.mj_getState(m, d, state[i], spec)
+        # The state vector starts with time, qpos, qvel (mjtState order); edits wait in the host arrays.
+        state[:, 1 : 1 + m.nq] = self._host["qpos"]
+        state[:, 1 + m.nq : 1 + m.nq + m.nv] = self._host["qvel"]
+        warm = np.stack([d.qacc_warmstart for d in self.mj_datas])
+        return state, warm
+
+    def get_ctrl(self) -> np.ndarray:
+        """The actuator controls [N, nu] the last `set_cmd` calls wrote (held over a step's substeps except in
+        pd_explicit mode, which recomputes them every substep)."""
+        return self._ctrl.copy()
+
     # ------------------------------------------------------------------ queries
     def get_sim_time(self) -> float:
         return self._sim_time

@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -148,6 +149,37 @@ def test_bench_json_reports_ratio():
     assert {"num_envs", "substeps", "env_steps_per_s", "raw_sim_steps_per_s", "ratio"} <= set(out)
     assert out["num_envs"] == 8 and out["substeps"] == 8
     assert out["ratio"] == pytest.approx(out["env_steps_per_s"] * 8 / out["raw_sim_steps_per_s"], rel=1e-3)
+    assert out["raw_mode"] == "free"
+    r = subprocess.run(
+        [sys.executable, "-m", "mimickit.cli", "bench", "--num_envs", "8", "--steps", "5", "--raw", "replay", "--json"],
+        capture_output=True, text=True, cwd=PROJECT_DATA_DIR.parent,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["raw_mode"] == "replay" and out["raw_sim_steps_per_s"] > 0
+
+
+def test_replay_in_rollout_redoes_the_env_step():
+    """`bench --raw replay` times mujoco.rollout re-running each env step: from the engine's start state
+    (a reset's pending edits included), warm start and controls, rollout must land exactly where the env's
+    step did, so the baseline does the same physics work."""
+    from mimickit.engines.bench_util import RawRollout
+
+    env = make(DEEPMIMIC, num_envs=6)
+    engine = env.engine
+    env.reset()
+    gen = torch.Generator().manual_seed(3)
+    low, high = (torch.as_tensor(b) for b in (env.get_action_space().low, env.get_action_space().high))
+    raw = RawRollout(engine.mj_model, engine.mj_datas, 2, engine.config.substeps)
+    for i in range(4):
+        if i == 2:
+            env.reset(torch.tensor([0, 5]))  # edits the next step pushes
+        state, warm = engine.physics_state()
+        env.step(low + (high - low) * torch.rand(6, low.shape[0], generator=gen))
+        raw.replay(state, warm, engine.get_ctrl())
+        after, _ = engine.physics_state()
+        np.testing.assert_array_equal(raw.last_state, after)
+    raw.close()
 
 
 def test_shifted_reference_equals_full_evaluation():
