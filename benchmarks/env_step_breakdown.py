@@ -1,15 +1,16 @@
 """Where an env step's time goes beyond raw physics, on the MuJoCo engine (figures, not tests).
 
-    python benchmarks/env_step_breakdown.py [--num_envs 256] [--steps 160]
+    python benchmarks/env_step_breakdown.py [--num_envs 256] [--steps 400]
 
-Runs the bench loop (random actions, done envs reset) and alternates, step by step, the variants it
-compares, so that a load that comes and goes on a shared machine weighs on both alike. Prints medians:
-- `engine_step_ms` vs `replay_rollout_ms`: the engine's step alone (commands in, state gathered) and
-  `mujoco.rollout` re-running that same step from the same start state, warm start and controls;
-- `clock_concurrent_ms` vs `clock_serial_ms`: the physics step with the env's clock work run
-  concurrently (`Engine.step(concurrent=...)`) vs run before it, and `clock_alone_ms`, its cost alone;
+Runs the bench loop (random actions, done envs reset) and alternates, two steps at a time, the env step
+as it is (the clock work run concurrently with the physics, `Engine.step(concurrent=...)`) and the same
+step with the clock work run before the physics, so that a load that comes and goes on a shared machine
+weighs on both alike. Prints medians per control step (step and reset):
+- `env_step_concurrent_clock_ms`, `env_step_serial_clock_ms`;
+- `replay_rollout_ms`: `mujoco.rollout` re-running each step's physics from the same start state, warm
+  start and controls (the same work; timed apart from the env);
 - `tail_idle_ms`: per worker pass, the time between the first and the last thread finishing (a core
-  idles that long), summed per control step.
+  idles that long), summed over the step's passes.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable
+from functools import partial
 
 import torch
 
@@ -48,12 +50,18 @@ def _instrument_tail_idle(engine: MujocoEngine, idle: list[float]) -> None:
     engine._step_chunk, engine._run_workers = timed_chunk, timed_pass
 
 
+def _clock_first(clock: Callable[[], None], step: Callable[..., None], concurrent: Callable[[], None]) -> None:
+    """An engine step that runs the clock work before the physics instead of during it."""
+    clock()
+    step()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--engine_config", default="data/engines/mujoco_engine.yaml")
     ap.add_argument("--env_config", default="data/envs/deepmimic_humanoid_env.yaml")
     ap.add_argument("--num_envs", type=int, default=256)
-    ap.add_argument("--steps", type=int, default=160)
+    ap.add_argument("--steps", type=int, default=400)
     args = ap.parse_args()
 
     n = args.num_envs
@@ -62,43 +70,34 @@ def main() -> None:
     raw = RawRollout(engine.mj_model, engine.mj_datas, engine.num_threads, engine.config.substeps)
     idle: list[float] = []
     _instrument_tail_idle(engine, idle)
+    plain_step = engine.step
     space = env.get_action_space()
     low, high = torch.as_tensor(space.low), torch.as_tensor(space.high)
     gen = torch.Generator().manual_seed(0)
     times: dict[str, list[float]] = defaultdict(list)
     with torch.inference_mode():
         env.reset()
-        for i in range(args.steps + 10):
-            env._apply_action(low + (high - low) * torch.rand(n, low.shape[0], generator=gen))
+        for i in range(args.steps + 20):
+            serial = (i // 2) % 2 == 1
+            action = low + (high - low) * torch.rand(n, low.shape[0], generator=gen)
             state, warm = engine.physics_state()
             idle_before = len(idle)
+            if serial:
+                engine.step = partial(_clock_first, env._update_clock, plain_step)
             start = time.perf_counter()
-            if i % 3 == 0:
-                engine.step()
-                key = "engine_step_ms"
-            elif i % 3 == 1:
-                engine.step(concurrent=env._update_clock)
-                key = "clock_concurrent_ms"
-            else:
-                env._update_clock()
-                times["clock_alone_ms"].append(time.perf_counter() - start)
-                engine.step()
-                key = "clock_serial_ms"
-            times[key].append(time.perf_counter() - start)
-            times["tail_idle_ms"].append(sum(idle[idle_before:]))
-            if key == "engine_step_ms":
-                times["replay_rollout_ms"].append(raw.replay(state, warm, engine.get_ctrl()))
-                env._update_clock()  # untimed: keeps the env's time and reference in step
-            with env._frozen_state():
-                env._update_info()
-                env._update_done()
-            ended = torch.nonzero(env._done_buf != DoneFlags.NULL).flatten()
+            _, _, done, _ = env.step(action)
+            ended = torch.nonzero(done != DoneFlags.NULL).flatten()
             if len(ended):
                 env.reset(ended)
+            elapsed = time.perf_counter() - start
+            engine.step = plain_step
+            if i < 20:
+                continue
+            times["env_step_serial_clock_ms" if serial else "env_step_concurrent_clock_ms"].append(elapsed)
+            times["tail_idle_ms"].append(sum(idle[idle_before:]))
+            times["replay_rollout_ms"].append(raw.replay(state, warm, engine.get_ctrl()))
     raw.close()
-    skip = 10 // 3  # warm-up steps of each variant
-    result = {k: round(statistics.median(v[skip:]) * 1e3, 3) for k, v in times.items()}
-    result["replay_over_engine"] = round(result["replay_rollout_ms"] / result["engine_step_ms"], 3)
+    result = {k: round(statistics.median(v) * 1e3, 3) for k, v in times.items()}
     print(json.dumps({"num_envs": n, "steps": args.steps, **result}))
 
 
