@@ -22,9 +22,7 @@ from __future__ import annotations
 import torch
 
 from mimickit.envs.amp_env import AMPEnv, compute_disc_obs
-from mimickit.envs.base_env import EnvMode
 from mimickit.envs.deepmimic_env import DeepMimicEnv
-from mimickit.envs.deepmimic_rewards import tracking_errors
 from mimickit.envs.env_config import ADDEnvConfig
 from mimickit.util import torch_util as tu
 
@@ -65,28 +63,18 @@ class ADDEnv(AMPEnv):
         return True  # the reference every step: tracking, pose termination, demo disc obs
 
     def _update_info(self, env_ids: torch.Tensor | None = None) -> None:
-        """Tracking errors, agent and demo disc obs of the given envs (all when None), reward terms."""
-        ids = torch.arange(self.num_envs, device=self.device) if env_ids is None else env_ids
-        self._update_tracking(env_ids)
+        """Tracking errors (DeepMimic's), agent and demo disc obs of the given envs (all when None), reward
+        terms."""
+        if env_ids is None:
+            self._last_sim = self._sim_state()  # the state pose termination reads
+            self._update_tracking(None, self._last_sim, self._ref_state())
+        else:
+            self._update_tracking(env_ids)
+        ids = self._all_env_ids if env_ids is None else env_ids
         disc_obs = self._update_disc_obs(env_ids)
         demo = self._demo_disc_obs(ids)
         self._disc_obs_demo_buf[ids] = demo
         self._store_reward_terms(demo - disc_obs, env_ids)
-
-    def _update_tracking(self, env_ids: torch.Tensor | None) -> None:
-        """DeepMimic's tracking errors into `info["tracking"]` (TEST mode: into the means `mimickit test`
-        reports); keeps the live state for the pose termination test. At a reset only in TEST mode, as
-        DeepMimic's `_update_info`."""
-        if env_ids is not None and self._mode != EnvMode.TEST:
-            return
-        sim = self._sim_state(env_ids)
-        ref = self._ref if env_ids is None else {k: v[env_ids] for k, v in self._ref.items()}
-        tracking = tracking_errors(sim, ref)
-        if env_ids is None:
-            self._last_sim = sim
-        self._store_info("tracking", tracking, env_ids)
-        if self._mode == EnvMode.TEST:
-            self._record_tracking(tracking)
 
     def _update_done(self) -> None:
         DeepMimicEnv._update_done(self)  # a clamped clip's end is a success, as in DeepMimic

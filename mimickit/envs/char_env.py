@@ -116,7 +116,7 @@ class CharEnv(SimEnv):
         callers get their own dict and must not write into its tensors."""
         if not self._state_frozen:
             return self._read_char_state(env_ids)
-        key = ("char", None if env_ids is None else id(env_ids))
+        key = _state_key(env_ids)
         if key not in self._state_cache:  # the entry keeps env_ids alive, so its id is not reused meanwhile
             self._state_cache[key] = (env_ids, self._read_char_state(env_ids))
         return dict(self._state_cache[key][1])
@@ -126,7 +126,7 @@ class CharEnv(SimEnv):
         `dof_pos`), so that the reset's observations and info read it rather than the engine: the engine
         would recompute the same (to float rounding) with a kinematics pass for those envs, which the next
         step does anyway. Only `_char_state(env_ids)` with this very tensor sees it, until the reset ends."""
-        self._state_cache[("char", id(env_ids))] = (env_ids, state)
+        self._state_cache[_state_key(env_ids)] = (env_ids, state)
 
     def _drop_preset_states(self) -> None:
         self._state_cache.clear()
@@ -161,6 +161,11 @@ class CharEnv(SimEnv):
             self.config.global_obs,
             self.config.root_height_obs,
         )
+
+
+def _state_key(env_ids: torch.Tensor | None) -> tuple[str, int | None]:
+    """The state cache's key for the character state of `env_ids` (that tensor object, or all envs)."""
+    return ("char", None if env_ids is None else id(env_ids))
 
 
 def action_bounds_pos(char: KinCharModel, zero_center: bool) -> tuple[np.ndarray, np.ndarray]:

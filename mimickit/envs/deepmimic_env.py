@@ -318,23 +318,40 @@ class DeepMimicEnv(CharEnv):
         return s
 
     def _update_info(self, env_ids: torch.Tensor | None = None) -> None:
-        if env_ids is not None and self._mode != EnvMode.TEST:
-            # A reset in training: the agents read info after a step, and the reference records tracking
-            # at reset only in TEST mode (spec 5.3); the reset envs keep the last step's values.
+        if env_ids is not None:  # a reset: its reward terms stay the last step's (module doc)
+            self._update_tracking(env_ids)
             return
-        sim = self._sim_state(env_ids)
+        sim, ref = self._sim_state(), self._ref_state()  # a step: its reward terms and tracking errors
+        terms = compute_reward_terms(
+            sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
+            self.config.root_height_obs,
+        )  # fmt: skip
+        self._store_info("reward_terms", terms, None)
+        self._last_sim = sim  # the state pose termination reads
+        self._update_tracking(None, sim, ref)
+
+    def _ref_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         ref = self._ref if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._ref.items()}
-        ref = dict(ref, key_pos=ref["body_pos"].index_select(1, self._key_body_ids))
-        if env_ids is None:  # a step: its reward terms, and the state pose termination reads
-            terms = compute_reward_terms(
-                sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
-                self.config.root_height_obs,
-            )  # fmt: skip
-            self._store_info("reward_terms", terms, env_ids)
-            self._last_sim = sim
+        return dict(ref, key_pos=ref["body_pos"].index_select(1, self._key_body_ids))
+
+    def _update_tracking(
+        self,
+        env_ids: torch.Tensor | None,
+        sim: dict[str, torch.Tensor] | None = None,
+        ref: dict[str, torch.Tensor] | None = None,
+    ) -> None:
+        """Tracking errors of the given envs (all when None) into `info["tracking"]`, from their sim and
+        reference states (read here unless given); TEST mode also records them, which `mimickit test`
+        reports whatever the yaml says. A reset in training leaves its envs' values as the last step's:
+        the agents read info after a step, and the reference records tracking at reset only in TEST mode
+        (spec 5.3)."""
+        if env_ids is not None and self._mode != EnvMode.TEST:
+            return
+        if sim is None or ref is None:
+            sim, ref = self._sim_state(env_ids), self._ref_state(env_ids)
         tracking = tracking_errors(sim, ref)
         self._store_info("tracking", tracking, env_ids)
-        if self._mode == EnvMode.TEST:  # always: `mimickit test` reports it whatever the yaml says
+        if self._mode == EnvMode.TEST:
             self._record_tracking(tracking)
 
     def _store_info(self, key: str, values: dict[str, torch.Tensor], env_ids: torch.Tensor | None) -> None:
