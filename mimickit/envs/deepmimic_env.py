@@ -297,8 +297,7 @@ class DeepMimicEnv(CharEnv):
         buffers themselves, no copy, and the pose features `_update_clock` computed during the physics)."""
         tar = self._tar if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._tar.items()}
         if self.config.global_obs:
-            root_pos = self._engine.get_root_pos(self._char_id)
-            ref_pos = root_pos if env_ids is None else root_pos.index_select(0, env_ids)
+            ref_pos = self._char_state(env_ids)["root_pos"]
         else:
             ref_pos = tar["root_pos"][:, 0]
         ref_rot = tar["root_rot"][:, 0]
