@@ -296,10 +296,7 @@ class DeepMimicEnv(CharEnv):
         """Target frames from the buffers `_eval_ref` filled for the current motion time (all envs: the
         buffers themselves, no copy, and the pose features `_update_clock` computed during the physics)."""
         tar = self._tar if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._tar.items()}
-        if self.config.global_obs:
-            ref_pos = self._char_state(env_ids)["root_pos"]
-        else:
-            ref_pos = tar["root_pos"][:, 0]
+        ref_pos = self._char_state(env_ids)["root_pos"] if self.config.global_obs else tar["root_pos"][:, 0]
         ref_rot = tar["root_rot"][:, 0]
         pose = self._tar_pose_obs if env_ids is None and self._tar_pose_obs is not None else self._tar_pose(tar)
         cfg = self.config
