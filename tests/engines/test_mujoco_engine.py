@@ -371,7 +371,6 @@ def test_concurrent_work_runs_once_per_step_and_leaves_the_physics_unchanged(hum
     engines[1].step()  # the workers finished: the engine steps on
 
 
-
 @pytest.mark.parametrize("mode", ["pos", "pd_explicit"])
 def test_split_substep_equals_full_steps_across_edits(humanoid_xml, mode):
     """A control step ends with mj_step1 of the new state and the next one starts with mj_step2 (module
