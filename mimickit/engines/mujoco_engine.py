@@ -8,12 +8,8 @@ sums `mj_contactForce` per body in C, in the world frame, instead of a Python lo
 
 Step: worker threads (one per core) each step a contiguous chunk of envs with `mj_step(m, d, n)`, which
 releases the GIL: first `substeps - 1` steps with sensors disabled, then the last one with them, then
-`mj_step1` so that body poses and velocities belong to the final qpos/qvel (mj_step leaves them one
-substep behind). `mj_step1` is the first half of the next substep (positions, collisions, velocities:
-the same fields `mj_kinematics / mj_comPos / mj_comVel` would give), so the next control step starts that
-env with `mj_step2` once its command is set, bit-identical to a full `mj_step` (MuJoCo documents the
-split for every integrator but RK4, which keeps the plain kinematics pass). A setter edit cancels it for
-the env. Measured against
+`mj_kinematics / mj_comPos / mj_comVel` so that body poses and velocities belong to the final qpos/qvel
+(mj_step leaves them one substep behind). Measured against
 `mujoco.rollout` (bench_util): at equal states the pool runs at 0.95-1.0x rollout's speed, and it keeps
 a live MjData per env for contacts and for drawing, which rollout's scratch data would not.
 
@@ -381,9 +377,6 @@ class MujocoEngine(Engine):
         self._xfrc = np.zeros((self._num_envs, m.nbody, 6))
         self._force_envs = np.zeros(self._num_envs, dtype=bool)
         self._dirty = np.zeros(self._num_envs, dtype=bool)
-        # Envs whose MjData holds mj_step1 of its current state (see the module doc); RK4 never splits.
-        self._split = m.opt.integrator != mujoco.mjtIntegrator.mjINT_RK4
-        self._primed = np.zeros(self._num_envs, dtype=bool)
         self._states = [_ObjState(self._num_envs, lay.num_bodies, lay.num_dofs, self._device) for lay in self._layouts]
         self._place_start_poses()
         self._init_threads()
@@ -574,7 +567,6 @@ class MujocoEngine(Engine):
                 opt.disableflags = flags
             concurrent = None
         self._run_workers(1, first=nsub == 1, last=True, concurrent=concurrent)
-        self._primed[:] = self._split
         self._clear_body_forces()
         # Gather and refresh once here rather than per chunk in the workers: measured as fast or faster
         # (numpy ops in a worker hold the GIL that the other workers need between mj_step calls).
@@ -616,27 +608,14 @@ class MujocoEngine(Engine):
 
     def _step_chunk(self, rows: slice, nstep: int, first: bool, last: bool) -> None:
         """Worker: `nstep` substeps of a contiguous chunk of envs (mj_step releases the GIL, so chunks run
-        in parallel); the command is applied on the first call of a control step, `_finish` after the last."""
-        m, primed, finish = self.mj_model, self._primed, self._finish
-        for i, (d, ctrl, cmd) in enumerate(self._env_io[rows], rows.start or 0):
-            n = nstep
+        in parallel); the command is applied on the first call of a control step, kinematics after the last."""
+        m = self.mj_model
+        for d, ctrl, cmd in self._env_io[rows]:
             if first:
                 ctrl[:] = cmd
-                if primed[i]:  # the first half of this substep ran at the end of the last control step
-                    mujoco.mj_step2(m, d)
-                    n -= 1
-            if n:
-                mujoco.mj_step(m, d, n)
+            mujoco.mj_step(m, d, nstep)
             if last:
-                finish(m, d)
-
-    def _finish(self, m: mujoco.MjModel, d: mujoco.MjData) -> None:
-        """Bring an env's body poses and velocities to its current qpos/qvel: `mj_step1`, which also primes
-        the next substep, or (RK4) the kinematics alone."""
-        if self._split:
-            mujoco.mj_step1(m, d)
-        else:
-            _update_kinematics(m, d)
+                _update_kinematics(m, d)
 
     def _step_chunk_pd_explicit(self, rows: slice, nstep: int, first: bool, last: bool) -> None:
         """Worker for pd_explicit: τ = kp (q* − q) − kd q̇ per actuator before every substep, from the actuator
@@ -645,16 +624,14 @@ class MujocoEngine(Engine):
         m, kp, kd = self.mj_model, self._act_kp, self._act_kd
         # mj_step2 integrates with Euler for RK4: there the full mj_step recomputes the forward pass.
         finish = mujoco.mj_step if m.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else mujoco.mj_step2
-        io = zip(self._env_io[rows], self._pd_target[rows], strict=True)
-        for i, ((d, ctrl, _), target) in enumerate(io, rows.start or 0):
-            for k in range(nstep):
-                if not (first and k == 0 and self._primed[i]):
-                    mujoco.mj_step1(m, d)
+        for (d, ctrl, _), target in zip(self._env_io[rows], self._pd_target[rows], strict=True):
+            for _ in range(nstep):
+                mujoco.mj_step1(m, d)
                 np.multiply(kp, target - d.actuator_length, out=ctrl)
                 ctrl -= kd * d.actuator_velocity
                 finish(m, d)
             if last:
-                self._finish(m, d)
+                _update_kinematics(m, d)
 
     def _push_body_forces(self) -> None:
         for i in np.flatnonzero(self._force_envs):
@@ -688,8 +665,7 @@ class MujocoEngine(Engine):
         if len(ids) == 0:
             return
         for i in ids:
-            self._finish(self.mj_model, self.mj_datas[i])
-        self._primed[ids] = self._split
+            _update_kinematics(self.mj_model, self.mj_datas[i])
         self._gather(ids)
         self._refresh(ids, contacts=False)
 
@@ -711,7 +687,6 @@ class MujocoEngine(Engine):
                 d.mocap_pos[:] = self._mocap_pos[i]
                 d.mocap_quat[:] = self._mocap_quat[i]
         self._dirty[:] = False
-        self._primed[ids] = False
         return ids
 
     def _refresh(self, rows: slice | np.ndarray, contacts: bool = True) -> None:

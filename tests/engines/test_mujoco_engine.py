@@ -371,35 +371,6 @@ def test_concurrent_work_runs_once_per_step_and_leaves_the_physics_unchanged(hum
     engines[1].step()  # the workers finished: the engine steps on
 
 
-@pytest.mark.parametrize("mode", ["pos", "pd_explicit"])
-def test_split_substep_equals_full_steps_across_edits(humanoid_xml, mode):
-    """A control step ends with mj_step1 of the new state and the next one starts with mj_step2 (module
-    doc): bit-identical to plain mj_step substeps with a kinematics pass, also for envs whose state a
-    setter edited (with or without a getter reading it before the step), and contact forces alike."""
-    n = 5
-    split, plain = make_engine(humanoid_xml, n, mode), make_engine(humanoid_xml, n, mode)
-    plain._split = False  # the unsplit path: full mj_step substeps, then mj_kinematics/comPos/comVel
-    gen = torch.Generator().manual_seed(3)
-    edit_ids = torch.tensor([1, 3])
-    for k in range(8):
-        cmd = random_dof(split, n, gen)
-        if k in (3, 5):  # a reset of some envs; at k == 5 a getter reads the edit before the step
-            dof = random_dof(split, len(edit_ids), gen)
-            for engine in (split, plain):
-                engine.set_dof_pos(edit_ids, 0, dof)
-                engine.set_dof_vel(edit_ids, 0, 0.0)
-            if k == 5:
-                assert torch.equal(split.get_body_pos(0), plain.get_body_pos(0))
-        for engine in (split, plain):
-            engine.set_cmd(0, cmd)
-            engine.step()
-        assert split._primed.all() and not plain._primed.any()
-        for a, b in zip(split.physics_state(), plain.physics_state(), strict=True):  # state, warm start
-            assert np.array_equal(a, b)
-        for getter in ("get_body_pos", "get_body_rot", "get_body_vel", "get_dof_vel", "get_ground_contact_forces"):
-            assert torch.equal(getattr(split, getter)(0), getattr(plain, getter)(0)), getter
-
-
 # ---------------------------------------------------------------------------------------------- contacts
 def test_ground_contact_forces_carry_the_body_weight_on_the_feet(humanoid_xml):
     engine = make_engine(humanoid_xml)
