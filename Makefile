@@ -40,7 +40,8 @@ format: setup
 
 # The Newton engine in its own venv: newton[sim] pins mujoco 3.17, the main venv keeps mujoco 4.
 # Same order as setup: the CPU torch wheel first. Runs the Newton engine and sim2sim tests on warp's
-# CPU device (the first run JIT-compiles the kernels into ~/.cache/warp).
+# CPU device (the first run JIT-compiles the kernels into ~/.cache/warp), and the MuJoCo engine and env
+# tests once more, on mujoco 3.17.
 setup-newton: $(NEWTON_STAMP)
 
 $(NEWTON_STAMP): pyproject.toml
@@ -51,4 +52,5 @@ $(NEWTON_STAMP): pyproject.toml
 	touch $(NEWTON_STAMP)
 
 test-newton: setup-newton
-	$(NEWTON_BIN)/python -m pytest -q tests/engines/test_newton_engine.py
+	$(NEWTON_BIN)/python -m pytest -q tests/engines/test_newton_engine.py tests/engines/test_mujoco_engine.py \
+		tests/engines/test_ball_joints.py tests/envs
