@@ -3,18 +3,20 @@
 Build: every object's MJCF is loaded with MjSpec, adapted (3-hinge bodies → one ball joint, passive
 stiffness/damping zeroed, its own motors dropped, a free root joint or a mocap root for `fix_root`) and
 attached under its own name prefix to a scene with a floor. The scene gets one actuator per DoF whose
-gains follow the control mode, and two contact sensors per body (all contacts, floor contacts): MuJoCo
+gains follow the control mode, four state sensors per body (frame position and orientation, COM linear
+and angular velocity, world frame) and two contact sensors per body (all contacts, floor contacts): MuJoCo
 sums `mj_contactForce` per body in C, in the world frame, instead of a Python loop over contacts.
 
 Step: worker threads (one per core) each step a contiguous chunk of envs with `mj_step(m, d, n)`, which
 releases the GIL: first `substeps - 1` steps with sensors disabled, then the last one with them, then
-`mj_kinematics / mj_comPos / mj_comVel` so that body poses and velocities belong to the final qpos/qvel
-(mj_step leaves them one substep behind). Measured against
+`mj_kinematics / mj_comPos / mj_comVel / mj_sensorPos / mj_sensorVel` so that body poses and velocities
+belong to the final qpos/qvel (mj_step leaves them one substep behind). Measured against
 `mujoco.rollout` (bench_util): at equal states the pool runs at 0.95-1.0x rollout's speed, and it keeps
 a live MjData per env for contacts and for drawing, which rollout's scratch data would not.
 
-State: after a step, qpos/qvel/body/sensor arrays of all envs are gathered into stacked numpy arrays
-[N, ...] with one `np.concatenate` per field, converted with vectorised numpy, and written into float32
+State: after a step, qpos, qvel and sensordata (body states and contact forces) of all envs are gathered
+into stacked numpy arrays [N, ...] with one `np.concatenate` per field (three fields rather than eight:
+1-3% of an env step at 256 envs, measured), converted with vectorised numpy, and written into float32
 buffers that back the torch tensors the getters return (views: they stay live). Setters edit the stacked
 qpos/qvel rows and mark the envs dirty; the next getter or step pushes them into the MjData and
 recomputes the kinematics of those envs only (contact forces keep their last-step values until a step).
@@ -67,9 +69,20 @@ _INTEGRATORS = {
 # world-frame "net force" (reduce mode 3 = netforce), one slot.
 _CONTACT_SENSOR_INTPRM = [1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE), 3, 1]
 
-# MjData fields gathered into stacked [N, ...] arrays after every step.
+# MjData fields gathered into stacked [N, ...] arrays after every step: the body states are sensors.
 # (Actuator forces are read only when asked for: the envs never do.)
-_GATHERED_FIELDS = ("qpos", "qvel", "xpos", "xquat", "xipos", "cvel", "subtree_com", "sensordata")
+_GATHERED_FIELDS = ("qpos", "qvel", "sensordata")
+
+# Per body, the sensors whose readings are its state row (name suffix, type, frame; 13 values): the body
+# frame's position and orientation (w first), the centre of mass's linear velocity (mjOBJ_BODY is the
+# inertial frame) and the angular velocity, both in the world frame.
+_BODY_SENSORS = (
+    ("pos", mujoco.mjtSensor.mjSENS_FRAMEPOS, mujoco.mjtObj.mjOBJ_XBODY),
+    ("quat", mujoco.mjtSensor.mjSENS_FRAMEQUAT, mujoco.mjtObj.mjOBJ_XBODY),
+    ("linvel", mujoco.mjtSensor.mjSENS_FRAMELINVEL, mujoco.mjtObj.mjOBJ_BODY),
+    ("angvel", mujoco.mjtSensor.mjSENS_FRAMEANGVEL, mujoco.mjtObj.mjOBJ_BODY),
+)
+_WXYZ_TO_XYZW_COLUMNS = [0, 1, 2, 4, 5, 6, 3, 7, 8, 9, 10, 11, 12]  # a body's 13 readings, quaternion w last
 
 GUIDED_SPLIT = 2
 """Each chunk of the step queue takes 1/(GUIDED_SPLIT × threads) of the envs still unassigned (at least
@@ -116,6 +129,7 @@ class _ObjLayout:
     hinge_axes: np.ndarray  # [H, 3] unit hinge axes in the joint frame
     ball_joints: np.ndarray  # [K] joint index of each ball joint
     act_ids: np.ndarray  # [D] actuator per DoF, empty without motors
+    body_adr: np.ndarray  # [B, 13] sensordata columns: position, rotation (x y z w), COM velocity, angular velocity
     contact_adr: np.ndarray  # [B * 3] sensordata columns: total contact force per body (on the sensor's body1)
     ground_adr: np.ndarray  # [B * 3] sensordata columns: floor contact force per body
     kp: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [D] gains as used by the control mode
@@ -300,6 +314,14 @@ def _add_dof_actuators(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel, mod
                 act.forcerange = [-float(limit[col]), float(limit[col])]
 
 
+def _add_body_sensors(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel) -> None:
+    """Per body, the state sensors of `_BODY_SENSORS`: computed in C with the kinematics, so that a step's
+    body states reach the stacked arrays in one copy per env (sensordata) rather than one per MjData field."""
+    for name in kin.body_names:
+        for suffix, sensor, objtype in _BODY_SENSORS:
+            scene.add_sensor(name=f"{prefix}{name}_{suffix}", type=sensor, objtype=objtype, objname=prefix + name)
+
+
 def _add_contact_sensors(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel) -> None:
     """Per body: net force over all its contacts, then over its contacts with the floor."""
     for name in kin.body_names:
@@ -427,6 +449,7 @@ class MujocoEngine(Engine):
                 _exclude_self_collisions(scene, prefix, kin)
             if self._has_motors(rec, kin):
                 _add_dof_actuators(scene, prefix, kin, cfg.control_mode)
+            _add_body_sensors(scene, prefix, kin)
             if not rec.is_visual:
                 _add_contact_sensors(scene, prefix, kin)
             prefixes.append(prefix)
@@ -464,6 +487,8 @@ class MujocoEngine(Engine):
                 ball_joints.append(jid)
         act_names = self._actuator_names(kin) if self._has_motors(rec, kin) else []
         act_ids = np.array([m.actuator(prefix + a).id for a in act_names], dtype=np.int64)
+        body_adr = [sum((_sensor_columns(m, f"{prefix}{n}_{suffix}") for suffix, _, _ in _BODY_SENSORS), [])
+                    for n in kin.body_names]  # fmt: skip
         contact_adr, ground_adr = [], []
         if not rec.is_visual:
             for n in kin.body_names:
@@ -486,6 +511,7 @@ class MujocoEngine(Engine):
             hinge_axes=np.array(hinge_axes, dtype=np.float64).reshape(-1, 3),
             ball_joints=np.array(ball_joints, dtype=np.int64),
             act_ids=act_ids.astype(np.int64),
+            body_adr=np.array(body_adr, dtype=np.int64)[:, _WXYZ_TO_XYZW_COLUMNS],
             contact_adr=np.array(contact_adr, dtype=np.int64),
             ground_adr=np.array(ground_adr, dtype=np.int64),
         )
@@ -971,10 +997,13 @@ def _sensor_columns(m: mujoco.MjModel, name: str) -> list[int]:
 
 
 def _update_kinematics(m: mujoco.MjModel, d: mujoco.MjData) -> None:
-    """Body poses, COM frames and velocities for the current qpos/qvel (contacts are left as they are)."""
+    """Body poses, COM frames and velocities, and the body state sensors, for the current qpos/qvel
+    (contacts and the contact sensors, computed with the accelerations, are left as they are)."""
     mujoco.mj_kinematics(m, d)
     mujoco.mj_comPos(m, d)
     mujoco.mj_comVel(m, d)
+    mujoco.mj_sensorPos(m, d)
+    mujoco.mj_sensorVel(m, d)
 
 
 def _refresh_obj(
@@ -982,17 +1011,11 @@ def _refresh_obj(
 ) -> None:
     """Write one object's state rows `rows` of `out` (see `_ObjState`) from stacked MjData fields h[field]
     [n, ...] (float64, already restricted to those rows)."""
-    b = lay.body_ids
-    body_pos = h["xpos"][:, b]  # [n, B, 3]
-    body_rot = h["xquat"][:, b][..., [1, 2, 3, 0]]  # w-first → xyzw
-    cvel = h["cvel"][:, b]  # [n, B, 6]: (angular, linear at the root's subtree COM), world frame
-    ang_vel = cvel[..., :3]
-    arm = h["xipos"][:, b] - h["subtree_com"][:, b[:1]]  # body COM relative to that point
-    lin_vel = cvel[..., 3:] + _cross(ang_vel, arm)
-    out["body_pos"][rows] = body_pos
-    out["body_rot"][rows] = body_rot
-    out["body_vel"][rows] = lin_vel
-    out["body_ang_vel"][rows] = ang_vel
+    body = h["sensordata"][:, lay.body_adr]  # [n, B, 13] (see _ObjLayout.body_adr)
+    out["body_pos"][rows] = body[..., 0:3]
+    out["body_rot"][rows] = body[..., 3:7]
+    out["body_vel"][rows] = body[..., 7:10]
+    out["body_ang_vel"][rows] = body[..., 10:13]
 
     if lay.num_dofs:
         qpos = h["qpos"]
@@ -1005,7 +1028,7 @@ def _refresh_obj(
         out["dof_vel"][rows] = h["qvel"][:, lay.dof_qvel]
 
     if contacts and len(lay.contact_adr):
-        n, nb = body_pos.shape[0], lay.num_bodies
+        n, nb = body.shape[0], lay.num_bodies
         # The sensors report the force their body exerts on the others: negate for the force on the body.
         out["contact_forces"][rows] = 0.0 - h["sensordata"][:, lay.contact_adr].reshape(n, nb, 3)
         out["ground_contact_forces"][rows] = 0.0 - h["sensordata"][:, lay.ground_adr].reshape(n, nb, 3)

@@ -139,14 +139,21 @@ def test_state_round_trips_and_velocity_frames(humanoid_xml):
         else:
             torch.testing.assert_close(got, value, atol=1e-5, rtol=1e-5, msg=name)
 
-    # Body velocities: world frame at each body's centre of mass, as MuJoCo's own mj_objectVelocity says.
+    # Body states (the body sensors): world frame, velocities at each body's centre of mass, as MuJoCo's
+    # own MjData and mj_objectVelocity say, after the setters and after a step.
     m, res = engine.mj_model, np.zeros(6)
-    for e in range(n):
-        d = engine.mj_datas[e]
-        for b, body_id in enumerate(engine._layouts[0].body_ids):
-            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(body_id), res, 0)
-            np.testing.assert_allclose(engine.get_body_ang_vel(0)[e, b], res[:3], atol=1e-4)
-            np.testing.assert_allclose(engine.get_body_vel(0)[e, b], res[3:], atol=1e-4)
+    for stepped in (False, True):
+        if stepped:
+            engine.set_cmd(0, state["dof_pos"])
+            engine.step()
+        for e in range(n):
+            d = engine.mj_datas[e]
+            for b, body_id in enumerate(engine._layouts[0].body_ids):
+                mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(body_id), res, 0)
+                np.testing.assert_allclose(engine.get_body_ang_vel(0)[e, b], res[:3], atol=1e-4)
+                np.testing.assert_allclose(engine.get_body_vel(0)[e, b], res[3:], atol=1e-4)
+                np.testing.assert_allclose(engine.get_body_pos(0)[e, b], d.xpos[body_id], atol=1e-6)
+                np.testing.assert_allclose(engine.get_body_rot(0)[e, b], d.xquat[body_id][[1, 2, 3, 0]], atol=1e-6)
 
 
 def test_joint_rotations_are_the_dofs_as_rotations_both_ways(humanoid_xml):
