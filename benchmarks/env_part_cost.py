@@ -25,8 +25,8 @@ from collections.abc import Callable
 import torch
 
 from mimickit.engines import mujoco_engine
-from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.env_builder import build_env
+from mimickit.tools.bench import random_action_step
 
 PARTS = ("none", "gather_refresh", "kinematics", "info", "obs", "done")
 
@@ -61,21 +61,15 @@ def measure(part: str, engine_config: str, env_config: str, num_envs: int, steps
     on = [False]
     kinematics = mujoco_engine._update_kinematics
     _double_part(env, part, on)
-    space = env.get_action_space()
-    low, high = torch.as_tensor(space.low), torch.as_tensor(space.high)
-    gen = torch.Generator().manual_seed(0)
+    one_step = random_action_step(env)
     times: dict[bool, list[float]] = {False: [], True: []}
     try:
         with torch.inference_mode():
             env.reset()
             for i in range(steps + 30):
                 on[0] = (i // 3) % 2 == 1
-                action = low + (high - low) * torch.rand(num_envs, low.shape[0], generator=gen)
                 start = time.perf_counter()
-                _, _, done, _ = env.step(action)
-                ended = torch.nonzero(done != DoneFlags.NULL).flatten()
-                if len(ended):
-                    env.reset(ended)
+                one_step()
                 if i >= 30 and i % 3 != 0:  # the first step of a block may still feel the previous kind
                     times[on[0]].append(time.perf_counter() - start)
     finally:

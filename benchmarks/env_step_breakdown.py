@@ -28,8 +28,8 @@ import torch
 
 from mimickit.engines.bench_util import RawRollout
 from mimickit.engines.mujoco_engine import MujocoEngine
-from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.env_builder import build_env
+from mimickit.tools.bench import random_action_step
 
 
 def _instrument_tail_idle(engine: MujocoEngine, idle: list[float]) -> None:
@@ -71,24 +71,18 @@ def main() -> None:
     idle: list[float] = []
     _instrument_tail_idle(engine, idle)
     plain_step = engine.step
-    space = env.get_action_space()
-    low, high = torch.as_tensor(space.low), torch.as_tensor(space.high)
-    gen = torch.Generator().manual_seed(0)
+    one_step = random_action_step(env)
     times: dict[str, list[float]] = defaultdict(list)
     with torch.inference_mode():
         env.reset()
         for i in range(args.steps + 20):
             serial = (i // 2) % 2 == 1
-            action = low + (high - low) * torch.rand(n, low.shape[0], generator=gen)
             state, warm = engine.physics_state()
             idle_before = len(idle)
             if serial:
                 engine.step = partial(_clock_first, env._update_clock, plain_step)
             start = time.perf_counter()
-            _, _, done, _ = env.step(action)
-            ended = torch.nonzero(done != DoneFlags.NULL).flatten()
-            if len(ended):
-                env.reset(ended)
+            one_step()
             elapsed = time.perf_counter() - start
             engine.step = plain_step
             if i < 20:

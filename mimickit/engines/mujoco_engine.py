@@ -487,8 +487,10 @@ class MujocoEngine(Engine):
                 ball_joints.append(jid)
         act_names = self._actuator_names(kin) if self._has_motors(rec, kin) else []
         act_ids = np.array([m.actuator(prefix + a).id for a in act_names], dtype=np.int64)
-        body_adr = [sum((_sensor_columns(m, f"{prefix}{n}_{suffix}") for suffix, _, _ in _BODY_SENSORS), [])
-                    for n in kin.body_names]  # fmt: skip
+        body_adr = [
+            [col for suffix, _, _ in _BODY_SENSORS for col in _sensor_columns(m, f"{prefix}{n}_{suffix}")]
+            for n in kin.body_names
+        ]
         contact_adr, ground_adr = [], []
         if not rec.is_visual:
             for n in kin.body_names:

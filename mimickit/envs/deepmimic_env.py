@@ -79,7 +79,7 @@ class DeepMimicEnv(CharEnv):
         self._all_env_ids = torch.arange(n, device=dev)
         self._frames: dict[str, torch.Tensor] = {}
         self._tar_pose_obs: torch.Tensor | None = None  # valid from `_update_clock` until the frames change
-        self._eval_ref(torch.arange(n, device=dev), self._motion_time_offsets)
+        self._init_frames()
         self._build_reset_pool()
         self._ref_char_offset = torch.tensor(config.ref_char_offset, dtype=torch.float32, device=dev)
 
@@ -146,14 +146,12 @@ class DeepMimicEnv(CharEnv):
         """The clip of envs `env_ids` at `times` [n] + steps × dt: {key: [n, len(steps), ...]}."""
         return self._eval_clip([(self._motion_ids.index_select(0, env_ids), times, steps)])[0]
 
-    def _eval_ref(self, env_ids: torch.Tensor, times: torch.Tensor) -> None:
-        """Evaluate every column for `env_ids` (the first build)."""
-        self._tar_pose_obs = None
-        frames = self._eval_frames(env_ids, times, self._ref_steps)
-        if not self._frames:
-            self._alloc_frames(frames)
-        for k, v in frames.items():
-            self._frames[k].index_copy_(0, env_ids, v)
+    def _init_frames(self) -> None:
+        """Every column of every env at its motion time, into newly laid-out buffers (the first build; then
+        steps advance the columns and resets copy in their pooled frames)."""
+        frames = self._eval_frames(self._all_env_ids, self._motion_time_offsets, self._ref_steps)
+        self._alloc_frames(frames)
+        self._packed_frames.copy_(self._pack(frames))
 
     def _alloc_frames(self, like: dict[str, torch.Tensor]) -> None:
         """One buffer [N, S, F] holds every key side by side (`_frames[k]` are views into it), so that the
@@ -293,8 +291,8 @@ class DeepMimicEnv(CharEnv):
         return torch.cat(obs, dim=-1)
 
     def _compute_tar_obs(self, env_ids: torch.Tensor | None) -> torch.Tensor:
-        """Target frames from the buffers `_eval_ref` filled for the current motion time (all envs: the
-        buffers themselves, no copy, and the pose features `_update_clock` computed during the physics)."""
+        """Target frames from the frame buffers at the current motion time (all envs: the buffers
+        themselves, no copy, and the pose features `_update_clock` computed during the physics)."""
         tar = self._tar if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._tar.items()}
         ref_pos = self._char_state(env_ids)["root_pos"] if self.config.global_obs else tar["root_pos"][:, 0]
         ref_rot = tar["root_rot"][:, 0]

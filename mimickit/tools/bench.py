@@ -40,18 +40,8 @@ def run_bench(
     if raw_mode not in RAW_MODES:
         raise MimicKitError(f"raw mode {raw_mode!r}: choose one of {', '.join(RAW_MODES)}")
     env = build_env(env_config, engine_config, num_envs, "cpu")
-    space = env.get_action_space()
-    low, high = torch.as_tensor(space.low), torch.as_tensor(space.high)
-    gen = torch.Generator().manual_seed(0)
+    one_step = random_action_step(env)
     env.reset()
-
-    def one_step() -> None:
-        action = low + (high - low) * torch.rand(num_envs, low.shape[0], generator=gen)
-        _, _, done, _ = env.step(action)
-        ended = torch.nonzero(done != DoneFlags.NULL).flatten()
-        if len(ended):
-            env.reset(ended)
-
     engine = env.engine
     substeps = engine.config.substeps
     rounds = max(1, min(rounds, steps))
@@ -94,6 +84,23 @@ def run_bench(
         "ratio_per_round": [round(r, 4) for r in ratios],
         "profile": {k: round(v, 4) for k, v in env.profiler.shares().items()},
     }
+
+
+def random_action_step(env: Any, seed: int = 0) -> Callable[[], None]:
+    """The bench's control step: uniform random actions within the env's action space (no network), then
+    a reset of the envs that are done."""
+    space = env.get_action_space()
+    low, high = torch.as_tensor(space.low), torch.as_tensor(space.high)
+    gen = torch.Generator().manual_seed(seed)
+
+    def one_step() -> None:
+        action = low + (high - low) * torch.rand(env.num_envs, low.shape[0], generator=gen)
+        _, _, done, _ = env.step(action)
+        ended = torch.nonzero(done != DoneFlags.NULL).flatten()
+        if len(ended):
+            env.reset(ended)
+
+    return one_step
 
 
 def _timed_steps(one_step: Callable[[], None], n: int, engine: Any | None) -> tuple[float, list[tuple]]:
