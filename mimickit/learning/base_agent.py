@@ -23,7 +23,6 @@ rank stops at the same iteration. `test_model` also stops between steps.
 from __future__ import annotations
 
 import abc
-import io
 import time
 from dataclasses import asdict, dataclass
 from enum import IntEnum
@@ -35,20 +34,18 @@ import torch
 from torch import nn
 
 from mimickit.envs.base_env import BaseEnv, DoneFlags, EnvMode
-from mimickit.learning import mp_util
+from mimickit.learning import checkpoint, mp_util
 from mimickit.learning.agent_config import BaseAgentConfig
+from mimickit.learning.checkpoint import TRAIN_STATE_KEY
 from mimickit.learning.experience_buffer import ExperienceBuffer
 from mimickit.learning.logger import Logger
 from mimickit.learning.mp_optimizer import MPOptimizer
 from mimickit.learning.normalizer import Normalizer
 from mimickit.learning.return_tracker import ReturnTracker
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import atomic_write_bytes
 
-TRAIN_STATE_KEY = "_train_state"
 MODEL_FILE = "model.pt"
 _OBS_CLIP = 10.0
-_TRAIN_STATE_FORMAT = 1
 
 
 class AgentMode(IntEnum):
@@ -125,6 +122,7 @@ class BaseAgent(nn.Module, abc.ABC):
         int_dir = out_dir / "int_models" if save_int_models else None
         if mp_util.is_root_proc():
             out_dir.mkdir(parents=True, exist_ok=True)
+            checkpoint.remove_stale_temp_files(out_dir)
             if int_dir is not None:
                 int_dir.mkdir(exist_ok=True)
         resumed = self._resumed
@@ -210,21 +208,13 @@ class BaseAgent(nn.Module, abc.ABC):
         """Load a checkpoint (ours or the reference's); refuse one that does not fit this env/agent
         with a `MimicKitError` naming the file and the mismatching key and shapes."""
         path = Path(path)
-        if not path.is_file():
-            raise MimicKitError(f"model file not found: {path}")
-        try:
-            state = torch.load(path, map_location=self._device, weights_only=True)
-        except Exception as e:  # noqa: BLE001 - any unreadable file is the same user error
-            msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-            raise MimicKitError(f"{path}: not a readable checkpoint ({e.__class__.__name__}: {msg})") from None
-        if not isinstance(state, dict):
-            raise MimicKitError(f"{path}: not a checkpoint (expected a state dict, got {type(state).__name__})")
-        train_state = state.pop(TRAIN_STATE_KEY, None)
-        self._check_fits(path, state)
+        state, train_state = checkpoint.split_train_state(checkpoint.read_checkpoint(path, self._device))
+        checkpoint.check_fits(path, self.state_dict(), state)
+        checkpoint.check_finite(path, state)
         self.load_state_dict(state, strict=True)
         self._sync_optimizers()
         if train_state is not None:
-            self._restore_train_state(train_state)
+            self._restore_train_state(train_state, path)
 
     def get_num_params(self) -> int:
         """Trainable parameters."""
@@ -466,76 +456,31 @@ class BaseAgent(nn.Module, abc.ABC):
         state: dict[str, Any] = dict(self.state_dict())
         if include_train_state:
             state[TRAIN_STATE_KEY] = self._train_state(next_iter)
-        buf = io.BytesIO()
-        torch.save(state, buf)
-        atomic_write_bytes(path, buf.getvalue())
+        checkpoint.write_checkpoint(path, state)
 
     def _train_state(self, next_iter: int) -> dict[str, Any]:
-        return {
-            "format": _TRAIN_STATE_FORMAT,
-            "agent_name": self.config.agent_name,
-            "iteration": int(next_iter),
-            "samples": int(self._sample_count),
-            "wall_time_hours": float(self._current_wall_hours()),
-            "test": asdict(self._last_test),
-            "optimizers": {name: opt.state_dict() for name, opt in self._optimizers().items()},
-        }
+        return checkpoint.make_train_state(
+            self.config.agent_name,
+            next_iter,
+            self._sample_count,
+            self._current_wall_hours(),
+            asdict(self._last_test),
+            self._optimizers(),
+        )
 
     def _current_wall_hours(self) -> float:
         running = (time.time() - self._train_start) / 3600.0 if self._train_start is not None else 0.0
         return self._wall_time_offset + running
 
-    def _restore_train_state(self, state: dict[str, Any]) -> None:
-        self._iter = int(state.get("iteration", 0))
-        self._sample_count = int(state.get("samples", 0))
-        self._wall_time_offset = float(state.get("wall_time_hours", 0.0))
-        test = state.get("test") or {}
-        self._last_test = EpisodeStats(
-            float(test.get("mean_return", 0.0)), float(test.get("mean_ep_len", 0.0)), int(test.get("num_eps", 0))
-        )
-        saved = state.get("optimizers") or {}
-        for name, opt in self._optimizers().items():
-            if name in saved:
-                opt.load_state_dict(saved[name])
+    def _restore_train_state(self, state: dict[str, Any], path: Path) -> None:
+        """`state` was checked by `checkpoint.check_train_state` (types and ranges)."""
+        checkpoint.load_optimizer_states(path, self._optimizers(), state["optimizers"])
+        self._iter = state["iteration"]
+        self._sample_count = state["samples"]
+        self._wall_time_offset = state["wall_time_hours"]
+        test = state["test"]
+        self._last_test = EpisodeStats(test["mean_return"], test["mean_ep_len"], test["num_eps"])
         self._resumed = True
-
-    def _check_fits(self, path: Path, state: dict[str, Any]) -> None:
-        """One MimicKitError listing what does not fit (missing/unexpected keys, shapes)."""
-        own = self.state_dict()
-        problems: list[str] = []
-        for key, val in own.items():
-            if key not in state:
-                continue
-            theirs = state[key]
-            if not isinstance(theirs, torch.Tensor):
-                problems.append(f"'{key}' is not a tensor in the checkpoint")
-            elif tuple(theirs.shape) != tuple(val.shape):
-                problems.append(
-                    f"{_what_differs(key)}: '{key}' has shape {list(theirs.shape)} in the checkpoint"
-                    f" but {list(val.shape)} here"
-                )
-        missing = [k for k in own if k not in state]
-        unexpected = [k for k in state if k not in own]
-        hint = "(a different agent or model config?)"
-        if missing:
-            problems.append(f"keys missing from the checkpoint: {_some(missing)} {hint}")
-        if unexpected:
-            problems.append(f"unexpected keys in the checkpoint: {_some(unexpected)} {hint}")
-        if problems:
-            raise MimicKitError(f"{path} does not fit this agent and environment: " + "; ".join(problems))
-
-
-def _what_differs(key: str) -> str:
-    if key.startswith("_obs_norm."):
-        return "observation size differs (a different env config or character?)"
-    if key.startswith("_a_norm."):
-        return "action size differs (a different character?)"
-    return "network shape differs (a different agent config, env or character?)"
-
-
-def _some(keys: list[str], n: int = 4) -> str:
-    shown = ", ".join(f"'{k}'" for k in keys[:n])
-    return shown + (f" and {len(keys) - n} more" if len(keys) > n else "")
 
 
 def _reduce_episode_stats(local: EpisodeStats) -> EpisodeStats:
