@@ -1,14 +1,16 @@
 """The FastAPI application: `create_app(settings)` wires the library, the run manager, the viser scene
 and the dashboard page into one ASGI app.
 
-viser serves the 3D scene on its own port (it cannot be mounted inside FastAPI); the dashboard at `/`
-embeds it in an iframe, so a user still opens one URL.
+viser serves the 3D scene on an internal loopback port (it cannot be mounted inside FastAPI); the
+studio relays it under `/scene/` (`studio.scene_proxy`) and the dashboard at `/` embeds that in an
+iframe, so a user opens one URL and every request, the scene's included, passes the same checks.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import logging
 import threading
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
@@ -36,9 +38,11 @@ from studio.rollout import Rollout, RolloutPlayer, RolloutSource
 from studio.rollout_gui import RolloutGui
 from studio.runs import RunError, RunManager
 from studio.scene import StudioScene
-from studio.security import PathError, TokenMiddleware, confine
+from studio.scene_proxy import VISER_HOST, add_scene_proxy
+from studio.security import HostPolicy, PathError, RequestGuard, confine
 from studio.settings import Settings
 
+LOG = logging.getLogger("studio")
 WEB_DIR = PROJECT_ROOT / "web"
 REGISTRY_FILE = "registry.sqlite"
 
@@ -116,8 +120,9 @@ def create_studio(settings: Settings) -> Studio:
     if settings.start_viser:
         # viser prints its own banner; the studio prints one URL (the dashboard's) instead.
         with contextlib.redirect_stdout(io.StringIO()):
+            # Loopback only, whatever --host says: browsers reach it through the studio's /scene/.
             studio.viser_server = viser.ViserServer(
-                host=settings.host, port=settings.viser_port, label="MimicKit Studio", verbose=False
+                host=VISER_HOST, port=settings.viser_port, label="MimicKit Studio", verbose=False
             )
         studio.scene = StudioScene(studio.viser_server)
         studio.player = Player(studio.scene)
@@ -147,9 +152,13 @@ def _play_startup_clip(studio: Studio) -> None:
 def create_app(settings: Settings) -> FastAPI:
     studio = create_studio(settings)
 
+    close_proxy = None
+
     @contextlib.asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
         yield
+        if close_proxy is not None:
+            await close_proxy()
         studio.close()
 
     app = FastAPI(
@@ -159,14 +168,15 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.studio = studio
-    if settings.needs_token:
-        if not settings.token:
-            raise ValueError(f"binding {settings.host} (not loopback) requires a token")
-        app.add_middleware(TokenMiddleware, token=settings.token)
+    if settings.needs_token and not settings.token:
+        raise ValueError(f"binding {settings.host} (not loopback) requires a token")
+    hosts = HostPolicy(settings.host, settings.allowed_hosts)
+    app.add_middleware(RequestGuard, hosts=hosts, token=settings.token if settings.needs_token else None)
 
     for module in (library_api, scene_api, runs_api, checkpoints_api):
         app.include_router(module.router, prefix="/api")
     _add_error_handlers(app)
+    close_proxy = add_scene_proxy(app, lambda: studio.viser_port)
 
     @app.get("/", include_in_schema=False)
     def index() -> FileResponse:
@@ -190,3 +200,11 @@ def _add_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(RunError)
     async def _run_error(_: Request, e: RunError) -> JSONResponse:
         return JSONResponse({"detail": str(e)}, status_code=e.status)
+
+    @app.exception_handler(Exception)
+    async def _unexpected(request: Request, e: Exception) -> JSONResponse:
+        # The last resort: the traceback goes to the server's log, the page gets one line.
+        LOG.error("%s %s failed", request.method, request.url.path, exc_info=e)
+        first = (str(e).strip().splitlines() or [""])[0][:300]
+        detail = f"internal error in {request.url.path}: {type(e).__name__}: {first} (traceback in the server log)"
+        return JSONResponse({"detail": detail}, status_code=500)

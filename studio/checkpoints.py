@@ -24,6 +24,7 @@ from typing import Any
 
 import torch
 
+from mimickit.learning.checkpoint import nonfinite_tensors, read_checkpoint
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, set_data_dir
@@ -47,15 +48,27 @@ def data_dir_for_build(data_dir: Path | None) -> Iterator[None]:
 
 
 def load_state(path: Path) -> dict[str, Any]:
-    """The checkpoint's state dict; MimicKitError (one line) when it is not a readable checkpoint."""
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # noqa: BLE001 - any unreadable file is the same user error
-        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        raise MimicKitError(f"{path}: not a readable checkpoint ({e.__class__.__name__}: {first[:200]})") from None
-    if not isinstance(state, dict):
-        raise MimicKitError(f"{path}: not a checkpoint (expected a state dict, got {type(state).__name__})")
-    return state
+    """The checkpoint's state dict; MimicKitError (one line) when it is not a readable checkpoint
+    (the trainer's reader: `weights_only=True`, a size limit, every value and `_train_state` checked)."""
+    return read_checkpoint(path)
+
+
+def nonfinite_message(path: Path, state: dict[str, Any]) -> tuple[list[str], str | None]:
+    """(the model tensors holding NaN or inf, and the one line that says so; None when all are finite)."""
+    model = {k: v for k, v in state.items() if k != TRAIN_STATE_KEY}
+    bad = nonfinite_tensors(model)
+    if not bad:
+        return [], None
+    shown = ", ".join(bad[:4]) + (f" and {len(bad) - 4} more" if len(bad) > 4 else "")
+    return bad, f"non-finite weights (NaN or inf) in {shown}: the run that wrote it diverged; it cannot be rolled out"
+
+
+def check_finite_checkpoint(path: Path) -> None:
+    """MimicKitError (one line) when the checkpoint cannot be read or holds non-finite weights:
+    checked before a rollout builds its env, so a diverged checkpoint is refused at once."""
+    _, message = nonfinite_message(path, load_state(path))
+    if message is not None:
+        raise MimicKitError(f"{path}: {message}")
 
 
 def agent_type(state: dict[str, Any]) -> tuple[str, str]:
@@ -160,6 +173,7 @@ def inspect_checkpoint(path: Path) -> dict[str, Any]:
     kind, reason = agent_type(state)
     obs_size, act_size = sizes(state)
     tensors = {k: v for k, v in state.items() if isinstance(v, torch.Tensor)}
+    nonfinite, nonfinite_msg = nonfinite_message(path, state)
     st = path.stat()
     return {
         "path": str(path),
@@ -178,6 +192,8 @@ def inspect_checkpoint(path: Path) -> dict[str, Any]:
         },
         "train_state": train_state_summary(state),
         "configs_beside": configs_beside(path),
+        "nonfinite": nonfinite,
+        "nonfinite_message": nonfinite_msg,
     }
 
 

@@ -1,4 +1,5 @@
-"""`mimickit-studio serve`: one process, the REST API + dashboard (uvicorn) and the 3D scene (viser).
+"""`mimickit-studio serve`: one process, the REST API + dashboard (uvicorn) and the 3D scene (viser,
+on an internal loopback port, relayed under the dashboard's `/scene/`).
 
 It prints one URL: the dashboard's (with the token, when one is needed).
 """
@@ -25,10 +26,18 @@ def build_parser() -> argparse.ArgumentParser:
     serve = sub.add_parser("serve", help="start the studio server and print its URL")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind; anything but loopback needs a token")
     serve.add_argument("--port", type=int, default=8000, help="dashboard/API port (0: a free one)")
-    serve.add_argument("--viser-port", type=int, default=0, help="3D scene port (0: a free one)")
+    serve.add_argument(
+        "--viser-port", type=int, default=0, help="the 3D scene's internal port on 127.0.0.1 (0: a free one)"
+    )
     serve.add_argument("--data-dir", type=Path, help="a MimicKit data folder (motions/, assets/, datasets/, ...)")
     serve.add_argument("--runs-dir", type=Path, help="where runs, uploads and the registry live")
-    serve.add_argument("--token", help="access token for /api (generated and printed if needed and absent)")
+    serve.add_argument("--token", help="access token for /api and /scene (generated and printed if needed and absent)")
+    serve.add_argument(
+        "--allowed-hosts",
+        default="",
+        help="comma-separated Host header names accepted besides the bound host's (e.g. a reverse proxy's "
+        "name; '*': any). Other names are refused (DNS rebinding)",
+    )
     serve.add_argument(
         "--clip", default=str(DEMO_CLIP), help="the clip playing when the page opens ('none': an empty scene)"
     )
@@ -108,6 +117,7 @@ def serve(args: argparse.Namespace) -> int:
         viser_port=args.viser_port,
         data_dir=args.data_dir,
         token=args.token,
+        allowed_hosts=[h.strip() for h in args.allowed_hosts.split(",") if h.strip()],
         max_concurrent_runs=max(1, args.max_concurrent_runs),
         trainer=parse_trainer(args.trainer),
     )
@@ -139,12 +149,6 @@ def serve(args: argparse.Namespace) -> int:
     shown_host = f"[{shown_host}]" if ":" in shown_host else shown_host
     url = f"http://{shown_host}:{settings.port}/"
     print(f"MimicKit Studio: {url}{'?token=' + settings.token if settings.needs_token else ''}", flush=True)
-    if settings.needs_token:
-        app_port = app.state.studio.viser_port
-        print(
-            f"note: the 3D scene's port {app_port} has no token: whoever reaches it can watch and drive the player",
-            file=sys.stderr,
-        )
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", timeout_graceful_shutdown=2))
     server.run(sockets=[sock])
     return 0

@@ -17,9 +17,10 @@ import torch
 from mimickit.anim.char_geometry import body_surface_points, lowest_point_z
 from mimickit.anim.kin_char_model import JointType, KinCharModel
 from mimickit.anim.mjcf_char_model import load_char_model
-from mimickit.anim.motion import Motion, load_motion
+from mimickit.anim.motion import Motion
 from mimickit.tools.motion_report import check_frame_dim
 from mimickit.util import torch_util as tu
+from studio.parsing import read_motion
 
 CONTACT_HEIGHT = 0.02  # a foot whose lowest point is this close to the ground counts as in contact
 _FOOT = re.compile(r"foot|toe|ankle", re.IGNORECASE)
@@ -68,7 +69,7 @@ def pose_clip(clip_path: Path, char_path: Path) -> ClipPose:
     """Load a clip and a character and pose every frame; MimicKitError when they do not fit."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # NaN columns read as 0 are reported by the library panel
-        motion = load_motion(clip_path)
+        motion = read_motion(clip_path)  # a user's file: with the guarded loader's budget
         char = load_char_model(char_path)
     check_frame_dim(motion, char, clip_path)
     frames = torch.from_numpy(motion.frames)

@@ -3,6 +3,9 @@
 Each data folder is MimicKit-shaped (`motions/`, `assets/`, `datasets/`, `envs/`, `agents/`, `engines/`,
 `args/`). Reading a clip or a character costs milliseconds, so results are cached per file and
 re-read only when the file's size or mtime changes.
+
+A file that cannot be read (a corrupt or hostile clip, a broken character, a binary arg file) is one
+entry with its one-line `error`, never a failed listing: the rest of the panel stays usable.
 """
 
 from __future__ import annotations
@@ -17,9 +20,9 @@ from typing import Any, TypeVar
 import yaml
 
 from mimickit.anim.mjcf_char_model import load_char_model
-from mimickit.anim.motion import load_motion
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
+from studio.parsing import read_motion
 from studio.security import display_path
 from studio.settings import Settings
 
@@ -35,13 +38,21 @@ class FileCache:
         self._items: dict[Path, tuple[tuple[int, int], Any]] = {}
 
     def get(self, path: Path, fn: Callable[[Path], T]) -> T:
-        st = path.stat()
+        """`fn(path)`, cached; a file that vanished or cannot be read (or an unexpected failure
+        inside `fn`) gives `{"error": "..."}` with one line instead of raising."""
+        try:
+            st = path.stat()
+        except OSError as e:
+            return {"error": f"{path.name}: cannot read it ({e.strerror or e})"}  # type: ignore[return-value]
         key = (st.st_size, st.st_mtime_ns)
         with self._lock:
             hit = self._items.get(path)
         if hit and hit[0] == key:
             return hit[1]
-        value = fn(path)
+        try:
+            value = fn(path)
+        except Exception as e:  # noqa: BLE001 - one bad file is one entry's error, not a failed listing
+            value = {"error": entry_error(path, e)}  # type: ignore[assignment]
         with self._lock:
             self._items[path] = (key, value)
         return value
@@ -112,15 +123,15 @@ class Library:
         out = []
         for shown, f in self._files("assets", "**/*.xml"):
             info = self._cache.get(f, _character_info)
-            if info.get("dof_size", 0) > 0:
-                out.append({"path": shown, **info})
+            if info.get("dof_size", 0) > 0 or "error" in info:  # props (no DoFs) are not characters
+                out.append({"path": shown, "name": f.stem, **info})
         return out
 
     def character_for_width(self, frame_dim: int, clip: Path, chars: list[dict[str, Any]] | None = None) -> str | None:
         """Guess a clip's character: the DoF count must fit; a folder name matching the clip's wins."""
         best, best_score = None, -1
         for c in chars if chars is not None else self.characters():
-            if c["frame_dim"] != frame_dim:
+            if c.get("frame_dim") != frame_dim:
                 continue
             folder, stem = Path(c["path"]).parent.name, Path(c["path"]).stem
             score = 2 * (folder == clip.parent.name) + clip.stem.startswith(folder) + (stem == folder)
@@ -150,7 +161,8 @@ class Library:
     # -- datasets and configs ---------------------------------------------------------------------
 
     def datasets(self) -> list[dict[str, Any]]:
-        return [{"path": shown, **self._cache.get(f, _dataset_info)} for shown, f in self._files("datasets", "*.yaml")]
+        files = self._files("datasets", "*.yaml")
+        return [{"path": shown, "name": f.stem, **self._cache.get(f, _dataset_info)} for shown, f in files]
 
     def configs(self) -> dict[str, list[dict[str, Any]]]:
         return self._listing("configs", self._scan_configs)
@@ -171,7 +183,8 @@ class Library:
                 if f.name in seen:
                     continue
                 seen.add(f.name)
-                out.append({"path": str(f), "name": f.stem, "args": self._cache.get(f, _arg_file_info)})
+                info = self._cache.get(f, _arg_file_info)  # {"args": ...} or {"error": ...}
+                out.append({"path": str(f), "name": f.stem, "args": {}, **info})
         return out
 
 
@@ -181,7 +194,7 @@ def _character_info(path: Path) -> dict[str, Any]:
             warnings.simplefilter("ignore")
             char = load_char_model(path)
     except MimicKitError as e:
-        return {"name": path.stem, "error": str(e)}
+        return {"name": path.stem, "error": one_line(str(e))}
     d = char.get_dof_size()
     return {"name": path.stem, "num_bodies": len(char.get_body_names()), "dof_size": d, "frame_dim": 6 + d}
 
@@ -190,9 +203,9 @@ def _motion_info(path: Path) -> dict[str, Any]:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # NaN columns are reported, not warned
-            m = load_motion(path, sanitize_nan=False)
+            m = read_motion(path, sanitize_nan=False)
     except MimicKitError as e:
-        return {"error": str(e)}
+        return {"error": one_line(str(e))}
     return {
         "fps": m.fps,
         "loop_mode": m.loop_mode.name.lower(),
@@ -205,16 +218,44 @@ def _motion_info(path: Path) -> dict[str, Any]:
 
 def _dataset_info(path: Path) -> dict[str, Any]:
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        data = load_yaml_text(path.read_text()) or {}
         motions = [{"file": str(m.get("file")), "weight": float(m.get("weight", 1.0))} for m in data.get("motions", [])]
-    except (yaml.YAMLError, AttributeError, TypeError, ValueError) as e:
-        return {"name": path.stem, "error": f"{path.name}: not a dataset yaml ({e})"}
+    except (yaml.YAMLError, MimicKitError, AttributeError, TypeError, ValueError) as e:
+        return {"name": path.stem, "error": one_line(f"{path.name}: not a dataset yaml ({e})")}
     return {"name": path.stem, "motions": motions}
 
 
-def _arg_file_info(path: Path) -> dict[str, list[str]]:
-    """The `--key values...` table of an arg file, for the launch form."""
+def _arg_file_info(path: Path) -> dict[str, Any]:
+    """`args`: the `--key values...` table of an arg file, for the launch form; or its `error`."""
     parser = ArgParser()
-    parser.load_file(str(path))
-    keys = parser.all_keys()
-    return {k: parser.parse_strings(k) for k in keys}
+    try:
+        parser.load_file(str(path))
+    except MimicKitError as e:
+        return {"error": one_line(str(e))}
+    return {"args": {k: parser.parse_strings(k) for k in parser.all_keys()}}
+
+
+MAX_ERROR_CHARS = 300
+
+
+def one_line(text: str) -> str:
+    """An error as the page shows it: its first line, at most `MAX_ERROR_CHARS` characters."""
+    first = (text.strip().splitlines() or [""])[0]
+    return first if len(first) <= MAX_ERROR_CHARS else first[: MAX_ERROR_CHARS - 1] + "…"
+
+
+def entry_error(path: Path, e: BaseException) -> str:
+    """One line for a file that could not be read: the MimicKitError's own line, else the file,
+    the exception's type and its first line."""
+    if isinstance(e, MimicKitError):
+        return one_line(str(e))
+    return one_line(f"{path.name}: cannot read it ({type(e).__name__}: {one_line(str(e))})")
+
+
+def load_yaml_text(text: str) -> Any:
+    """A yaml document through the project's bomb-refusing loader when it is there."""
+    try:
+        from mimickit.util.config import load_yaml_text as safe  # the loader that refuses alias bombs
+    except ImportError:
+        return yaml.safe_load(text)
+    return safe(text)

@@ -25,6 +25,8 @@ class Settings:
     data_dir: Path | None = None  # a user's MimicKit-style data folder (motions/, assets/, ...)
     runs_dir: Path = field(default_factory=lambda: PROJECT_ROOT / "output" / "studio_runs")
     token: str | None = None
+    allowed_hosts: list[str] = field(default_factory=list)
+    """Host header names accepted besides the bound host's (`--allowed-hosts`; `*`: any)."""
     max_concurrent_runs: int = 1
     trainer: list[str] = field(default_factory=lambda: list(DEFAULT_TRAINER))
     """The program a run starts, before its `--arg_file ...` arguments (`mimickit train` by default)."""

@@ -8,7 +8,9 @@ const TOKEN = params.get("token") || sessionStorage.getItem("studio-token") || "
 if (TOKEN) sessionStorage.setItem("studio-token", TOKEN);
 
 async function api(method, path, body, raw = false) {
-  const headers = TOKEN ? { "X-Studio-Token": TOKEN } : {};
+  // X-Studio-Request: the server refuses state-changing requests without it (or a JSON body), which
+  // no cross-site form can send.
+  const headers = TOKEN ? { "X-Studio-Token": TOKEN, "X-Studio-Request": "1" } : { "X-Studio-Request": "1" };
   const init = { method, headers };
   if (body instanceof Blob) { init.body = body; headers["Content-Type"] = "application/octet-stream"; }
   else if (body !== undefined) { init.body = JSON.stringify(body); headers["Content-Type"] = "application/json"; }
@@ -31,7 +33,9 @@ const el = (tag, attrs = {}, ...children) => {
 async function init() {
   const health = await api("GET", "/api/health");
   $("health").textContent = `runs: ${health.runs_dir} · data: ${health.data_dirs.join(", ")}`;
-  if (health.viser_port) $("scene").src = `${location.protocol}//${location.hostname}:${health.viser_port}/`;
+  // The scene is relayed by the studio itself (one port, one token check); the token's cookie lets
+  // viser's page open its websocket, which it does without the query string.
+  if (health.viser_port) $("scene").src = withToken(health.scene_url || "/scene/");
   await loadLibrary();
   await refreshRuns();
   setInterval(refreshState, 250);
@@ -58,17 +62,21 @@ function renderLibrary() {
     clips: () => library.clips.map((m) => [m.path, m.error ? m.error :
       `${m.num_frames} frames · ${m.fps} fps · ${m.duration.toFixed(2)} s · ${m.loop_mode} · ${m.character || "no character fits"}`,
       () => loadClip(m)]),
-    characters: () => library.characters.map((c) => [c.path, `${c.num_bodies} bodies · ${c.dof_size} DoFs · frame width ${c.frame_dim}`]),
+    characters: () => library.characters.map((c) => [c.path, c.error || `${c.num_bodies} bodies · ${c.dof_size} DoFs · frame width ${c.frame_dim}`]),
     datasets: () => library.configs.datasets.map((d) => [d.path, d.error || `${d.motions.length} clips`]),
     configs: () => [
-      ...library.configs.arg_files.map((a) => [a.path, `arg file · ${Object.keys(a.args).length} keys`]),
+      ...library.configs.arg_files.map((a) => [a.path, a.error || `arg file · ${Object.keys(a.args).length} keys`]),
       ...["envs", "agents", "engines"].flatMap((k) => library.configs[k].map((c) => [c.path, k])),
     ],
   }[library.tab]();
+  const failed = new Set([...library.clips, ...library.characters, ...library.configs.arg_files, ...library.configs.datasets]
+    .filter((x) => x.error).map((x) => x.error));
   for (const [title, meta, onclick] of rows) {
     if (q && !title.toLowerCase().includes(q)) continue;
-    const item = el("div", { class: "item", title }, el("div", {}, title.split("/").pop()), el("div", { class: "meta" }, meta));
-    if (onclick) item.addEventListener("click", () => { document.querySelectorAll("#library-list .selected").forEach((e) => e.classList.remove("selected")); item.classList.add("selected"); onclick(); });
+    const bad = failed.has(meta);  // a file that cannot be read: its one-line error, not a dead panel
+    const item = el("div", { class: bad ? "item broken" : "item", title },
+      el("div", {}, title.split("/").pop()), el("div", { class: bad ? "meta error" : "meta" }, meta));
+    if (onclick && !bad) item.addEventListener("click", () => { document.querySelectorAll("#library-list .selected").forEach((e) => e.classList.remove("selected")); item.classList.add("selected"); onclick(); });
     list.append(item);
   }
 }
@@ -229,10 +237,13 @@ document.querySelectorAll("#curves canvas").forEach((c) => {
   plots[c.dataset.group].draw();
 });
 
+const DEFAULT_ARG_FILE = "deepmimic_humanoid_demo_ppo_args";  // trains on the project's own clip: no MimicKit data needed
 function fillLaunchForm() {
   const argSel = $("arg-file"), keep = argSel.value;
   argSel.replaceChildren(...library.configs.arg_files.map((a) => el("option", { value: a.path }, a.name)));
+  const demo = library.configs.arg_files.find((a) => a.name === DEFAULT_ARG_FILE);
   if (keep) argSel.value = keep;
+  else if (demo) argSel.value = demo.path;
   const motionSel = $("motion-file"), keepMotion = motionSel.value;
   motionSel.replaceChildren(el("option", { value: "" }, "(from the arg file)"),
     ...library.configs.datasets.map((d) => el("option", { value: d.path }, `dataset: ${d.name}`)),
@@ -249,6 +260,7 @@ $("launch").addEventListener("submit", async (ev) => {
   if ($("num-envs").value) body.num_envs = Number($("num-envs").value);
   if ($("max-samples").value) body.max_samples = Number($("max-samples").value);
   if ($("motion-file").value) body.motion_file = $("motion-file").value;
+  if ($("rand-seed").value !== "") body.rand_seed = Number($("rand-seed").value);
   try {
     const run = await api("POST", "/api/runs", body);
     $("launch-error").textContent = "";
@@ -268,30 +280,59 @@ async function refreshRuns() {
   if (selectedRun !== null) updateConsole();
 }
 
+const ENDED = ["finished", "stopped", "diverged", "failed", "interrupted"];
+const num = (v) => (v === null || v === undefined ? "–" : Number(v).toLocaleString("en-US"));
+const duration = (s) => (s === null || s === undefined ? "–" : s < 60 ? `${s.toFixed(0)} s` : s < 3600 ? `${(s / 60).toFixed(1)} min` : `${(s / 3600).toFixed(2)} h`);
+
+// One run, from its folder (run.summary): what it trains, how far, at what rate, with which seed, how it ended.
 function runItem(run) {
   const act = (label, fn, enabled = true) => {
     const b = el("button", { "data-action": label.toLowerCase(), onclick: (ev) => { ev.stopPropagation(); fn(); } }, label);
     b.disabled = !enabled;
     return b;
   };
+  const s = run.summary || {};
   const active = ["running", "stopping", "queued"].includes(run.status);
-  const finished = ["succeeded", "failed", "stopped", "interrupted"].includes(run.status);
+  const ended = ENDED.includes(run.status);
+  const field = (name, text) => el("span", { "data-field": name }, text);
+  const clip = s.motion_file ? `${s.dataset ? "dataset " : ""}${s.motion_file.split("/").pop()}` : run.config.arg_file.split("/").pop();
+  const budget = s.max_samples ?? run.config.max_samples ?? null;
+  const progress = el("progress", { "data-field": "progress", max: String(budget || 1), value: String(budget ? Math.min(s.samples || 0, budget) : 0) });
+  if (!budget) progress.removeAttribute("value");  // no budget: an indeterminate bar
   const item = el("div", { class: `item${run.id === selectedRun ? " selected" : ""}`, "data-run-id": run.id, onclick: () => selectRun(run.id) },
-    el("div", {}, `#${run.id} ${run.name} `, el("span", { class: `status ${run.status}` }, run.status)),
-    el("div", { class: "meta" }, `${run.config.arg_file.split("/").pop()}${run.exit_code !== null ? ` · exit ${run.exit_code}` : ""}${run.checkpoint ? " · checkpoint" : ""}`),
+    el("div", {}, `#${run.id} ${run.name} `, el("span", { class: `status ${run.status}`, "data-field": "status" }, run.status)),
+    el("div", { class: "meta" }, field("clip", clip), " on ", field("char", s.char_file ? s.char_file.split("/").pop() : "–"),
+      " · ", field("envs", `${num(s.num_envs ?? run.config.num_envs)} envs`), " · seed ", field("seed", num(s.seed))),
+    el("div", { class: "meta" }, progress, " ", field("samples", `${num(s.samples)} / ${budget ? num(budget) : "no limit"} samples`)),
+    el("div", { class: "meta" }, field("elapsed", duration(s.elapsed_s)), " · ", field("rate", `${s.samples_per_s ? s.samples_per_s.toFixed(0) : "–"} samples/s`),
+      " · test return ", field("test-return", s.test_return !== null && s.test_return !== undefined ? s.test_return.toFixed(2) : "–"),
+      s.resumes ? ` · resumed ${s.resumes}×` : ""),
+    ...(run.reason ? [el("div", { class: "meta reason", "data-field": "reason" }, run.reason)] : []),
     el("div", { class: "actions" },
       act("Stop", () => runAction(run, "stop"), active && run.status !== "stopping"),
-      act("Resume", () => runAction(run, "resume"), finished && !!run.checkpoint),
+      act("Continue", () => continueRun(run, budget, s.samples), ended && !!run.checkpoint),
+      act("Again", () => runAction(run, "again"), s.seed !== null && s.seed !== undefined),
       act("Rollout", () => loadRollout({ run_id: run.id }), !!run.checkpoint),
       act("Inspect", () => inspectCheckpoint(run.checkpoint), !!run.checkpoint),
       act("Delete", () => deleteRun(run), !active)));
   return item;
 }
 
-async function runAction(run, action) {
-  try { await api("POST", `/api/runs/${run.id}/${action}`); } catch (e) { alert(e.message); }
-  if (action === "resume") selectRun(run.id);
+// POSTs carry a JSON body (the server refuses cross-site form posts).
+async function runAction(run, action, body = {}) {
+  let result = null;
+  try { result = await api("POST", `/api/runs/${run.id}/${action}`, body); } catch (e) { alert(e.message); }
+  if (result && action === "resume") selectRun(run.id);
+  if (result && action === "again") selectRun(result.id);
   refreshRuns();
+}
+
+// Continue: resume from the checkpoint with a budget (total samples); a run that reached its budget needs a larger one.
+function continueRun(run, budget, samples) {
+  const suggested = budget && samples >= budget ? 2 * budget : budget || "";
+  const answer = prompt(`Continue run #${run.id} up to how many samples in all? (trained: ${num(samples)})`, String(suggested));
+  if (answer === null) return;
+  runAction(run, "resume", answer.trim() ? { max_samples: Number(answer) } : {});
 }
 
 async function deleteRun(run) {
@@ -315,14 +356,21 @@ function selectRun(id) {
 }
 
 let redrawPending = false;
+const plotFor = (k) => (k === "train_return" || k === "test_return" ? plots.returns
+  : k.endsWith("episode_length") ? plots.lengths : k.startsWith("reward_terms.") ? plots.rewards
+  : k.includes("loss") ? plots.losses : null);
+// A row: one iteration, or a marker ({"event": "resume"}); a non-finite value arrives as null named in `nonfinite`.
 function addRow(row) {
   const x = row.samples ?? row.iteration ?? 0;
-  for (const [k, v] of Object.entries(row)) {
-    if (typeof v !== "number") continue;
-    if (k === "train_return" || k === "test_return") plots.returns.add(k, x, v);
-    else if (k.endsWith("episode_length")) plots.lengths.add(k, x, v);
-    else if (k.startsWith("reward_terms.")) plots.rewards.add(k, x, v);
-    else if (k.includes("loss")) plots.losses.add(k, x, v);
+  if (row.event === "resume") Object.values(plots).forEach((p) => p.addMarker(x, "resume"));
+  else {
+    const bad = row.nonfinite || {};
+    for (const [k, v] of Object.entries(row)) {
+      const plot = plotFor(k);
+      if (!plot) continue;
+      if (k in bad) plot.markNonfinite(k, x, bad[k]);
+      else if (typeof v === "number") plot.add(k, x, v);
+    }
   }
   if (!redrawPending) {  // many rows arrive at once when a stream starts: draw once per frame
     redrawPending = true;
@@ -345,7 +393,7 @@ function fillFitTargets() {
   const sel = $("fit-target"), keep = sel.value;
   sel.replaceChildren(el("option", { value: "" }, "fits… (env config or character)"),
     ...library.configs.envs.map((c) => el("option", { value: `env_config=${c.path}` }, `env: ${c.path}`)),
-    ...library.characters.map((c) => el("option", { value: `char=${c.path}` }, `character: ${c.path}`)));
+    ...library.characters.filter((c) => !c.error).map((c) => el("option", { value: `char=${c.path}` }, `character: ${c.path}`)));
   sel.value = keep;
 }
 
@@ -395,6 +443,7 @@ function renderInspection(c) {
   else lines.push("no _train_state (a reference or exported checkpoint)");
   const box = $("inspect");
   box.replaceChildren(lines.join("\n"));
+  if (c.nonfinite_message) box.append("\n", el("span", { class: "misfit error", "data-nonfinite": "true" }, c.nonfinite_message));
   if (c.fit) box.append("\n", el("span", { class: c.fit.fits ? "fits" : "misfit", "data-fits": String(c.fit.fits) }, c.fit.message));
 }
 

@@ -8,9 +8,9 @@ from typing import Any
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import JSONResponse
 
-from mimickit.anim.motion import motion_from_bytes
 from mimickit.util.paths import atomic_write_bytes
 from studio.api import studio_of
+from studio.parsing import read_motion_bytes, run_blocking
 
 router = APIRouter(tags=["library"])
 
@@ -23,6 +23,7 @@ def health(request: Request) -> dict[str, Any]:
     return {
         "status": "ok",
         "viser_port": studio.viser_port,
+        "scene_url": "/scene/" if studio.viser_port else None,
         "data_dirs": [str(d) for d in s.data_dirs],
         "runs_dir": str(s.runs_dir),
         "max_concurrent_runs": s.max_concurrent_runs,
@@ -63,9 +64,11 @@ async def upload_motion(
         body += chunk
         if len(body) > limit:
             raise HTTPException(413, f"a clip may be at most {limit} bytes")
-    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", filename.rsplit("/", 1)[-1]).removesuffix(".pkl").strip("._") or "clip"
-    motion = motion_from_bytes(bytes(body), source=filename)  # MimicKitError -> 400
+    # Parsed in a worker thread (a child process with a budget, when the guarded loader is there):
+    # a hostile clip must not stall the other requests.
+    motion = await run_blocking(read_motion_bytes, bytes(body), source=upload_stem(filename) + ".pkl")
     folder = studio.settings.uploads_dir
+    stem = upload_stem(filename)
     target = folder / f"{stem}.pkl"
     n = 1
     while target.exists():
@@ -74,3 +77,14 @@ async def upload_motion(
     atomic_write_bytes(target, bytes(body))  # the bytes as given: byte-compatible with MimicKit
     studio.library.invalidate()
     return {"path": str(target), "num_frames": motion.num_frames, "fps": motion.fps, "frame_dim": motion.frame_dim}
+
+
+MAX_STEM_CHARS = 100  # well under a file system's 255-byte name limit, with `_N.pkl` after it
+
+
+def upload_stem(filename: str) -> str:
+    """A safe file stem for an uploaded clip: the last path part, odd characters as `_`, at most
+    `MAX_STEM_CHARS` characters; `clip` when nothing is left."""
+    base = filename.replace("\\", "/").rsplit("/", 1)[-1]
+    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", base).removesuffix(".pkl").strip("._")
+    return stem[:MAX_STEM_CHARS].strip("._") or "clip"

@@ -14,6 +14,7 @@ from pydantic import BaseModel, Field
 
 from mimickit.util.errors import MimicKitError
 from studio.api import need, studio_of
+from studio.checkpoints import check_finite_checkpoint
 from studio.clip_pose import pose_clip
 from studio.player import Player
 from studio.rollout import RolloutPlayer, source_for_checkpoint
@@ -118,6 +119,7 @@ def load_rollout(body: LoadRollout, request: Request) -> dict[str, Any]:
         k: confine(v, roots) if (v := getattr(body, k)) else None
         for k in ("env_config", "agent_config", "engine_config")
     }
+    check_finite_checkpoint(checkpoint)  # unreadable or diverged (NaN weights): one line, before any build
     try:
         source = source_for_checkpoint(checkpoint, run_id=body.run_id, run_name=run_name, **configs)
         if source.data_dir is None:
@@ -256,9 +258,11 @@ def export_replay(body: ExportReplay, request: Request) -> dict[str, Any]:
 @router.get("/replays/{name}")
 def download_replay(name: str, request: Request) -> FileResponse:
     """A replay written by `export_replay`, as a download."""
-    path = studio_of(request).settings.runs_dir / REPLAYS_DIR / name
-    if not _REPLAY_NAME.match(name) or not path.is_file():
+    folder = studio_of(request).settings.runs_dir / REPLAYS_DIR
+    if not _REPLAY_NAME.match(name) or not (folder / name).is_file():
         raise HTTPException(404, f"no replay named {name!r}")
+    # A symlink placed in the replays folder must not lead out of it.
+    path = confine(str(folder / name), [folder])
     return FileResponse(path, media_type="text/html", filename=name)
 
 

@@ -46,7 +46,8 @@ class StudioProcess:
         with open(self.stderr_path, "a") as err:  # a file, not a pipe nobody reads that could fill up
             self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err, text=True)
         self.url = self._read_url()
-        self.client = httpx.Client(base_url=self.url, timeout=30.0)
+        # The header the dashboard sends: state-changing requests without it (or a JSON body) are refused.
+        self.client = httpx.Client(base_url=self.url, timeout=30.0, headers={"X-Studio-Request": "1"})
 
     def _read_url(self) -> str:
         box: list[str] = []

@@ -15,7 +15,7 @@ from tests.conftest import DEMO_CLIP
 
 def make_client(tmp_path: Path, **kw: object) -> TestClient:
     settings = Settings(runs_dir=tmp_path / "runs", start_viser=False, **kw)
-    return TestClient(create_app(settings))
+    return TestClient(create_app(settings), base_url="http://127.0.0.1:8000", headers={"X-Studio-Request": "1"})
 
 
 def test_loopback_needs_no_token(tmp_path: Path) -> None:
@@ -79,8 +79,10 @@ def test_confine(tmp_path: Path) -> None:
 
 def test_upload_size_limit(tmp_path: Path) -> None:
     settings = Settings(runs_dir=tmp_path / "runs", start_viser=False, upload_limit_bytes=1000)
-    with TestClient(create_app(settings)) as client:
-        r = client.post("/api/motions/upload?filename=big.pkl", content=DEMO_CLIP.read_bytes())
+    with TestClient(create_app(settings), base_url="http://127.0.0.1:8000") as client:
+        r = client.post(
+            "/api/motions/upload?filename=big.pkl", content=DEMO_CLIP.read_bytes(), headers={"X-Studio-Request": "1"}
+        )
         assert r.status_code == 413
         assert not (tmp_path / "runs" / "uploads").exists() or not any((tmp_path / "runs" / "uploads").iterdir())
 
