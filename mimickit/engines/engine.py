@@ -24,7 +24,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 import torch
-from pydantic import field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from mimickit.anim.kin_char_model import KinCharModel
 from mimickit.util.config import ConfigModel
@@ -32,6 +32,10 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import resolve_data_path
 
 SUPPORTED_ENGINES = ("mujoco", "newton")
+# Rate bounds: a typo such as sim_freq 3e7 would make one env step run millions of physics steps.
+MAX_SIM_FREQ = 10_000
+MAX_CONTROL_FREQ = 1_000
+MAX_SUBSTEPS = 1_000
 
 
 class ControlMode(IntEnum):
@@ -60,11 +64,11 @@ class EngineConfig(ConfigModel):
     """Which physics backend: "mujoco" (CPU) or "newton" (GPU)."""
     control_mode: ControlMode = ControlMode.none
     """none / pos / vel / torque / pd_explicit (alias pd_1d); an integer 0-4 is accepted too."""
-    control_freq: int = 10
+    control_freq: int = Field(10, le=MAX_CONTROL_FREQ)
     """Policy rate in Hz; one `step()` lasts 1 / control_freq seconds."""
-    sim_freq: int = 60
-    """Physics rate in Hz; a multiple of control_freq."""
-    env_spacing: float
+    sim_freq: int = Field(60, le=MAX_SIM_FREQ)
+    """Physics rate in Hz; a multiple of control_freq, at most MAX_SUBSTEPS times it."""
+    env_spacing: float = Field(ge=0)
     """Grid spacing (m) between envs when drawn; the envs themselves do not share a world."""
     ball_joint_limits: Literal["cone", "none"] = "cone"
     """How 3-D (ball) joints are limited. "cone": the joint's total rotation angle stays below the largest
@@ -82,12 +86,12 @@ class EngineConfig(ConfigModel):
     """Isaac Gym's height threshold for "ground" contacts; MuJoCo reports true floor contacts instead."""
     integrator: Literal["implicitfast", "implicit", "euler", "rk4"] = "implicitfast"
     """MuJoCo integrator; implicitfast treats the PD damping implicitly."""
-    solver_iterations: int = 20
+    solver_iterations: int = Field(20, le=1000)
     """Maximum Newton-solver iterations per substep (MuJoCo). Measured on the humanoid with random PD
     targets (76,800 substeps at 240 Hz): mean 1.4, max 17, so 20 never binds; caps of 3 or less blow up."""
-    ls_iterations: int = 50
+    ls_iterations: int = Field(50, le=1000)
     """Maximum line-search iterations per solver iteration (MuJoCo)."""
-    num_threads: int = 0
+    num_threads: int = Field(0, ge=0, le=1024)
     """Worker threads stepping the envs (MuJoCo); 0 = one per CPU core."""
 
     @field_validator("engine_name")
@@ -124,6 +128,10 @@ class EngineConfig(ConfigModel):
     def _sim_multiple_of_control(self) -> EngineConfig:
         if self.sim_freq % self.control_freq != 0:
             raise ValueError(f"sim_freq ({self.sim_freq}) must be a multiple of control_freq ({self.control_freq})")
+        if self.substeps > MAX_SUBSTEPS:  # each env step would run that many physics steps
+            raise ValueError(
+                f"sim_freq / control_freq is {self.substeps} physics steps per control step, over {MAX_SUBSTEPS}"
+            )
         return self
 
     @property

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import Field, model_validator
 
@@ -23,9 +23,17 @@ _ISAAC_ONLY_KEYS = {"sim", "plane", "physx"}
 _PORTABLE_ENGINE_KEYS = {"control_mode", "control_freq", "env_spacing", "ground_contact_height", "ball_joint_limits"}
 
 
+# Bounds on numbers that size a buffer or a loop: one mistyped value must not mean a giant allocation.
+MAX_PHASE_ENCODING = 16  # frequencies 2^k: past 2^16 they are beyond a float32 phase's resolution
+MAX_TAR_OBS_STEPS = 64
+MAX_TAR_OBS_STEP = 1_000
+MAX_DISC_OBS_STEPS = 256
+
+
 class SimEnvConfig(ConfigModel):
     env_name: str
     episode_length: float = Field(gt=0, description="seconds per episode")
+    """Seconds per episode, finite."""
 
 
 class CharEnvConfig(SimEnvConfig):
@@ -33,8 +41,8 @@ class CharEnvConfig(SimEnvConfig):
     global_obs: bool
     root_height_obs: bool = True
     zero_center_action: bool = False
-    init_pose: list[float] | None = None
-    key_bodies: list[str] = []
+    init_pose: list[float] | None = Field(None, max_length=1_000)
+    key_bodies: list[str] = Field([], max_length=1_000)
     camera_mode: str = "still"
 
 
@@ -42,17 +50,21 @@ class DeepMimicEnvConfig(CharEnvConfig):
     motion_file: str
     enable_early_termination: bool
     ref_char_offset: list[float] = Field(min_length=3, max_length=3)
-    num_phase_encoding: int = 0
+    num_phase_encoding: int = Field(0, ge=0, le=MAX_PHASE_ENCODING)
+    """Sin/cos pairs of the phase at frequencies 2π·2^k, k < num_phase_encoding."""
     pose_termination: bool = False
-    pose_termination_dist: float = 1.0
+    pose_termination_dist: float = Field(1.0, gt=0)
     enable_phase_obs: bool = True
     enable_tar_obs: bool = False
-    tar_obs_steps: list[int] = [1]
+    tar_obs_steps: list[Annotated[int, Field(ge=1, le=MAX_TAR_OBS_STEP)]] = Field(
+        [1], min_length=1, max_length=MAX_TAR_OBS_STEPS
+    )
+    """Control steps ahead at which the target observation shows the reference (each >= 1)."""
     rand_reset: bool = True
     log_tracking_error: bool = False
     visualize_ref_char: bool = True
-    contact_bodies: list[str] = []
-    joint_err_w: list[float] | None = None
+    contact_bodies: list[str] = Field([], max_length=1_000)
+    joint_err_w: list[float] | None = Field(None, max_length=1_000)
     reward_pose_w: float
     reward_vel_w: float
     reward_root_pose_w: float
@@ -72,7 +84,7 @@ class DeepMimicEnvConfig(CharEnvConfig):
 
 
 class AMPEnvConfig(DeepMimicEnvConfig):
-    num_disc_obs_steps: int = Field(ge=1)
+    num_disc_obs_steps: int = Field(ge=1, le=MAX_DISC_OBS_STEPS)
     """Steps of state history in one discriminator observation (humanoid: 10)."""
     disc_dof_vel_obs: bool = True
     """Include the DoF velocities in the discriminator observation."""

@@ -25,6 +25,14 @@ NetName = Literal[
 ]
 StdType = Literal["FIXED", "CONSTANT", "VARIABLE"]
 
+# Bounds on numbers that size a buffer or a loop, so one mistyped value is an error, not a giant
+# allocation or an iteration that never ends (each is 100x or more what a shipped yaml uses).
+MAX_STEPS_PER_ITER = 10_000
+MAX_EPOCHS = 1_000
+MAX_TEST_EPISODES = 10_000_000
+MAX_DISC_BUFFER = 2_000_000  # disc obs rows; the humanoid's 200,000 take about 1.1 GB
+MAX_LATENT_DIM = 4_096
+
 
 class OptimizerConfig(ConfigModel):
     type: Literal["SGD", "Adam"]
@@ -53,10 +61,10 @@ class BaseAgentConfig(ConfigModel):
     discount: float = Field(ge=0, lt=1)
     iters_per_output: int = Field(ge=1)
     """Every this many iterations: test episodes, a log.txt row and model.pt."""
-    test_episodes: int = Field(ge=0)
-    steps_per_iter: int = Field(ge=1)
+    test_episodes: int = Field(ge=0, le=MAX_TEST_EPISODES)
+    steps_per_iter: int = Field(ge=1, le=MAX_STEPS_PER_ITER)
     """Rollout length per iteration (rows of the experience buffer)."""
-    normalizer_samples: float = math.inf
+    normalizer_samples: float = Field(math.inf, ge=0, allow_inf_nan=True)
     """The observation normaliser is updated while the global sample count is below this."""
     use_mixed_precision: bool = False
     """Accepted for compatibility with older reference yamls; ignored."""
@@ -76,10 +84,10 @@ class ActorCriticAgentConfig(BaseAgentConfig):
     model: ActorCriticModelConfig
     actor_optimizer: OptimizerConfig
     critic_optimizer: OptimizerConfig
-    actor_epochs: int = Field(ge=0)
+    actor_epochs: int = Field(ge=0, le=MAX_EPOCHS)
     actor_batch_size: float = Field(gt=0)
     """Samples per actor minibatch = ceil(actor_batch_size × num_envs)."""
-    critic_epochs: int = Field(ge=0)
+    critic_epochs: int = Field(ge=0, le=MAX_EPOCHS)
     critic_batch_size: float = Field(gt=0)
     """Samples per critic minibatch = ceil(critic_batch_size × num_envs)."""
     td_lambda: float = Field(ge=0, le=1)
@@ -88,7 +96,7 @@ class ActorCriticAgentConfig(BaseAgentConfig):
     action_reg_weight: float
     critic_eval_batch_size: int = Field(default=0, ge=0)
     """Samples per critic forward pass when building targets; 0 = all at once."""
-    exp_anneal_samples: float = math.inf
+    exp_anneal_samples: float = Field(math.inf, gt=0, allow_inf_nan=True)
     exp_prob_beg: float = Field(default=1.0, ge=0, le=1)
     exp_prob_end: float = Field(default=1.0, ge=0, le=1)
 
@@ -116,12 +124,12 @@ class AMPAgentConfig(PPOAgentConfig):
     agent_name: Literal["AMP"] = "AMP"  # type: ignore[assignment]
     model: AMPModelConfig
     disc_optimizer: OptimizerConfig
-    disc_epochs: int = Field(ge=0)
+    disc_epochs: int = Field(ge=0, le=MAX_EPOCHS)
     disc_batch_size: float = Field(gt=0)
     """Samples per discriminator minibatch = ceil(disc_batch_size × num_envs), plus as many replayed."""
-    disc_buffer_size: int = Field(ge=1)
+    disc_buffer_size: int = Field(ge=1, le=MAX_DISC_BUFFER)
     """Capacity of the replay buffer of past agent disc obs."""
-    disc_replay_samples: int = Field(ge=0)
+    disc_replay_samples: int = Field(ge=0, le=MAX_DISC_BUFFER)
     """Agent disc obs pushed into the full replay buffer per iteration (all of them until it is full)."""
     disc_logit_reg: float = Field(ge=0)
     """Weight of Σ w² over the logit layer's weights."""
@@ -145,7 +153,7 @@ class ADDAgentConfig(AMPAgentConfig):
 class ASEModelConfig(AMPModelConfig):
     enc_net: NetName
     """Encoder MLP on the normalised disc obs; its output layer predicts the latent (unit-normalised)."""
-    latent_dim: int = Field(ge=1)
+    latent_dim: int = Field(ge=1, le=MAX_LATENT_DIM)
     """Size of the skill latent z (humanoid: 64); actor and critic take [obs, z]."""
 
 
@@ -159,7 +167,7 @@ class ASEAgentConfig(AMPAgentConfig):
     latent_time_min: float = Field(ge=0)
     """Seconds a latent is kept at least (the env's time is checked after every step)."""
     latent_time_max: float = Field(ge=0)
-    enc_epochs: int = Field(ge=0)
+    enc_epochs: int = Field(ge=0, le=MAX_EPOCHS)
     enc_batch_size: float = Field(gt=0)
     """Samples per encoder minibatch = ceil(enc_batch_size × num_envs)."""
     enc_reward_weight: float
