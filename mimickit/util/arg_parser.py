@@ -3,23 +3,36 @@
 Semantics of the reference (spec §1.2): a token starting with `--` (3+ chars) starts a key whose
 values are the following tokens; `#` tokens are comments; keys given on the command line win over the
 same keys in the arg file; booleans are true for `true, True, 1, T, t`.
+
+The parser remembers where each key came from (`source`: the command line or the arg file's path),
+so an error about a value can say where to fix it. An arg file must be UTF-8 text (a binary one is
+one error line naming it). Which keys a run knows and what values they take: `mimickit.run_args`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from mimickit.util.config import read_text_file
 from mimickit.util.errors import MimicKitError
 
 _TRUE = {"true", "True", "1", "T", "t"}
+FALSE_VALUES = frozenset({"false", "False", "0", "F", "f"})
+TRUE_VALUES = frozenset(_TRUE)
+COMMAND_LINE = "the command line"
+MAX_ARG_FILE_BYTES = 1 << 20
 
 
 class ArgParser:
     def __init__(self) -> None:
         self._table: dict[str, list[str]] = {}
+        self._sources: dict[str, str] = {}
 
     def load_args(self, argv: list[str]) -> None:
-        self._table.update({k: v for k, v in _parse_tokens(argv).items() if k not in self._table})
+        for key, vals in _parse_tokens(argv).items():
+            if key not in self._table:
+                self._table[key] = vals
+                self._sources[key] = COMMAND_LINE
         arg_file = self.parse_string("arg_file", "")
         if arg_file:
             self.load_file(arg_file)
@@ -29,12 +42,18 @@ class ArgParser:
         if not p.is_file():
             raise MimicKitError(f"arg file not found: {path}")
         tokens: list[str] = []
-        for line in p.read_text().splitlines():
+        for line in read_text_file(p, "arg file", MAX_ARG_FILE_BYTES).splitlines():
             if line.strip().startswith("#"):
                 continue
             tokens += line.split()
-        for key, vals in _parse_tokens(tokens).items():
-            self._table.setdefault(key, vals)
+        try:
+            parsed = _parse_tokens(tokens)
+        except MimicKitError as e:
+            raise MimicKitError(f"{path}: {e}") from None
+        for key, vals in parsed.items():
+            if key not in self._table:
+                self._table[key] = vals
+                self._sources[key] = str(path)
 
     def has_key(self, key: str) -> bool:
         return key in self._table
@@ -42,8 +61,13 @@ class ArgParser:
     def all_keys(self) -> list[str]:
         return list(self._table)
 
+    def source(self, key: str) -> str:
+        """Where `key` was given: `COMMAND_LINE`, an arg file's path, or "set" (by `set`)."""
+        return self._sources.get(key, "set")
+
     def set(self, key: str, *values: str) -> None:
         self._table[key] = list(values)
+        self._sources[key] = "set"
 
     def parse_string(self, key: str, default: str = "") -> str:
         vals = self._table.get(key)
@@ -59,9 +83,14 @@ class ArgParser:
         if val == "":
             return default
         try:
-            return int(float(val)) if "e" in val.lower() else int(val)
-        except ValueError:
-            raise MimicKitError(f"--{key}: expected an integer, got {val!r}") from None
+            if "e" not in val.lower():
+                return int(val)
+            f = float(val)  # 1e6 is an integer written in scientific notation; 1.5e0 is not
+            if not f.is_integer():
+                raise ValueError(val)
+            return int(f)
+        except (ValueError, OverflowError):
+            raise MimicKitError(f"--{key}: expected an integer, got {_short(val)!r}") from None
 
     def parse_float(self, key: str, default: float = 0.0) -> float:
         val = self.parse_string(key, "")
@@ -70,7 +99,7 @@ class ArgParser:
         try:
             return float(val)
         except ValueError:
-            raise MimicKitError(f"--{key}: expected a number, got {val!r}") from None
+            raise MimicKitError(f"--{key}: expected a number, got {_short(val)!r}") from None
 
     def parse_bool(self, key: str, default: bool = False) -> bool:
         val = self.parse_string(key, "")
@@ -89,10 +118,14 @@ def _parse_tokens(tokens: list[str]) -> dict[str, list[str]]:
             key = tok[2:]
             table.setdefault(key, [])
         elif key is None:
-            raise MimicKitError(f"argument {tok!r} comes before any --key")
+            raise MimicKitError(f"argument {_short(tok)!r} comes before any --key")
         else:
             table[key].append(tok)
     return table
+
+
+def _short(text: str, limit: int = 80) -> str:
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _is_number(tok: str) -> bool:
