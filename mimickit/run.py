@@ -3,8 +3,17 @@
 `mimickit train ...` and `mimickit test ...` call the same code with `--mode` set. Arguments follow the
 reference (spec §1.2): arg_file, mode, num_envs, engine_config, env_config, agent_config, out_dir,
 model_file, max_samples, test_episodes, logger (txt|tb|wandb), rand_seed, devices, save_int_models,
-visualize, video; plus data_dir (a MimicKit data folder for `data/...` paths) and json (test mode: print
-one JSON object). SIGTERM or Ctrl-C during training saves a checkpoint and exits 0.
+visualize, video; plus data_dir (a MimicKit data folder for `data/...` paths), motion_file (a clip or
+dataset yaml that replaces the env config's `motion_file`) and json (test mode: print one JSON object).
+
+A training run's folder (`--out_dir`, see `mimickit.run_folder`) records the run: args.json (argv,
+effective values, the seed used, versions), the configs as trained, state.json (running, then
+finished / stopped / diverged / failed with the line that says why). Without `--rand_seed` a seed is
+drawn and recorded; `--rand_seed <seed>` repeats a CPU run's metrics rows exactly (same num_envs).
+`--model_file RUN/model.pt --out_dir RUN --max_samples LARGER` continues a run with a new budget.
+SIGTERM or Ctrl-C during training saves a checkpoint and exits 0 (state stopped).
+Exit codes: 0 finished or stopped, 1 failed after the run started, 2 refused before anything started
+(one `error:` line), 3 diverged (a non-finite loss, gradient, weight, observation or action).
 """
 
 from __future__ import annotations
@@ -12,11 +21,12 @@ from __future__ import annotations
 import json
 import os
 import random
-import shutil
+import secrets
 import signal
 import socket
 import sys
-import time
+import traceback
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +35,27 @@ if __package__ in (None, ""):  # run as a script: make the package importable, a
 
 import numpy as np
 import torch
+import yaml
 
+from mimickit.run_args import check_run_args
+from mimickit.run_folder import EndState, ExitCode, RunFolder
 from mimickit.util.arg_parser import ArgParser
+from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path, set_data_dir
+from mimickit.util.paths import atomic_write_bytes, resolve_data_path, set_data_dir
+
+NO_LIMIT = int(np.iinfo(np.int64).max)
+
+
+@dataclass
+class RunInputs:
+    """The files a run reads, resolved and checked before anything starts."""
+
+    env_file: str
+    engine_file: str | None
+    agent_file: str | None
+    motion_file: str | None
+    """`--motion_file`, resolved (None: the env config's own clip or dataset)."""
 
 
 def default_devices() -> list[str]:
@@ -41,63 +68,97 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def seed_everything(args: ArgParser, rank: int) -> int:
+def draw_seed(args: ArgParser) -> tuple[int, str]:
+    """(base seed, "rand_seed" | "drawn"): `--rand_seed`, or a fresh random one when it is absent or < 0."""
     seed = args.parse_int("rand_seed", -1)
-    if seed < 0:
-        seed = int(np.uint64(time.time() * 256) % np.uint64(2**31))
-    seed += 41 * rank
+    if seed >= 0:
+        return seed, "rand_seed"
+    return secrets.randbelow(2**31), "drawn"
+
+
+def seed_everything(args: ArgParser, rank: int, base_seed: int | None = None) -> int:
+    """Seed Python, NumPy and torch with `base_seed` (default: `draw_seed`) + 41 × rank; returns it."""
+    seed = (draw_seed(args)[0] if base_seed is None else base_seed) + 41 * rank
     random.seed(seed)
     np.random.seed(seed % 2**32)
     torch.manual_seed(seed)
     return seed
 
 
-def run(rank: int, world: int, device: str, port: int, argv: list[str]) -> dict[str, Any] | None:
-    """One process of a (possibly multi-process) run."""
-    from mimickit.envs.env_builder import build_env
+def run(
+    rank: int, world: int, device: str, port: int, argv: list[str], base_seed: int | None = None
+) -> dict[str, Any] | int:
+    """One process of a (possibly multi-process) run: the test result (test mode) or the exit code."""
     from mimickit.learning import mp_util
     from mimickit.learning.agent_builder import build_agent
 
     args = ArgParser()
     args.load_args(argv)
+    check_run_args(args)  # unknown keys and bad values: one line before anything starts
     set_data_dir(args.parse_string("data_dir", "") or None)
     mode = args.parse_string("mode", "train")
     if mode not in ("train", "test"):
         raise MimicKitError(f"--mode must be train or test, got {mode!r}")
+    inputs = resolve_inputs(args)
+    if base_seed is None:
+        base_seed = draw_seed(args)[0]
     mp_util.init(rank, world, device, port)
-    seed_everything(args, rank)
+    seed_everything(args, rank, base_seed)
     torch.set_num_threads(max(1, (os.cpu_count() or 1) // world))
 
-    env_file = _config_path(args, "env_config", required=True)
-    engine_file = _config_path(args, "engine_config")
-    agent_file = _config_path(args, "agent_config")
-    num_envs = args.parse_int("num_envs", 1)
-    env = build_env(env_file, engine_file, num_envs, device, visualize=False)
-    agent = build_agent(agent_file, env, device)
+    env, env_info = build_run_env(inputs, args.parse_int("num_envs", 1), device)
+    agent = build_agent(inputs.agent_file, env, device)
     model_file = args.parse_string("model_file", "")
     if model_file:
         agent.load(model_file)
 
     if mode == "test":
-        episodes = args.parse_int("test_episodes", np.iinfo(np.int64).max)
+        episodes = args.parse_int("test_episodes", NO_LIMIT)
         result: dict[str, Any] = agent.test_model(episodes).to_dict()
         summary = getattr(env, "tracking_summary", dict)()
         result["tracking"] = test_tracking(summary)
         return result
+    return _train(args, argv, inputs, env_info, agent, base_seed, world)
 
-    out_dir = Path(args.parse_string("out_dir", "output/"))
-    if mp_util.is_root_proc():
-        out_dir.mkdir(parents=True, exist_ok=True)
-        _copy_configs(out_dir, env_file, engine_file, agent_file)
-        (out_dir / "args.json").write_text(json.dumps({k: args.parse_strings(k) for k in args.all_keys()}, indent=1))
-    _install_stop_handlers(agent)
-    agent.train_model(
-        max_samples=args.parse_int("max_samples", np.iinfo(np.int64).max),
-        out_dir=str(out_dir),
-        save_int_models=args.parse_bool("save_int_models", False),
-        logger_type=args.parse_string("logger", "txt"),
+
+def resolve_inputs(args: ArgParser) -> RunInputs:
+    """The config files and `--motion_file`, each checked to exist (one error line otherwise)."""
+    motion = args.parse_string("motion_file", "")
+    if args.has_key("motion_file") and not motion:
+        raise MimicKitError("--motion_file needs a value (a .pkl clip or a dataset .yaml)")
+    motion_path = resolve_data_path(motion) if motion else None
+    if motion_path is not None and not motion_path.is_file():
+        raise MimicKitError(f"--motion_file: file not found: {motion}")
+    return RunInputs(
+        env_file=_config_path(args, "env_config", required=True) or "",
+        engine_file=_config_path(args, "engine_config"),
+        agent_file=_config_path(args, "agent_config"),
+        motion_file=str(motion_path) if motion_path is not None else None,
     )
-    return None
+
+
+def build_run_env(inputs: RunInputs, num_envs: int, device: str) -> tuple[Any, dict[str, Any]]:
+    """The env of the configs, `--motion_file` replacing the env config's clip or dataset; plus what
+    args.json records about it (env_name, char_file, the motion file trained on and where it came from)."""
+    from mimickit.envs.env_builder import build_env_from_configs
+    from mimickit.envs.env_config import load_env_configs
+
+    env_cfg, engine_cfg = load_env_configs(inputs.env_file, inputs.engine_file)
+    if inputs.motion_file is not None:
+        if not hasattr(env_cfg, "motion_file"):
+            raise MimicKitError(
+                f"--motion_file: env {env_cfg.env_name!r} ({inputs.env_file}) has no motion_file to replace"
+            )
+        env_cfg = env_cfg.model_copy(update={"motion_file": inputs.motion_file})
+    motion = getattr(env_cfg, "motion_file", None)
+    info = {
+        "env_name": env_cfg.env_name,
+        "char_file": str(resolve_data_path(env_cfg.char_file)),
+        "motion_file": str(resolve_data_path(motion)) if motion else None,
+        "motion_file_from": None if not motion else ("--motion_file" if inputs.motion_file else "env_config"),
+        "engine_name": engine_cfg.engine_name,
+    }
+    return build_env_from_configs(env_cfg, engine_cfg, num_envs, device, visualize=False), info
 
 
 def test_tracking(summary: dict[str, float]) -> dict[str, float]:
@@ -112,6 +173,144 @@ def test_tracking(summary: dict[str, float]) -> dict[str, float]:
     return tracking
 
 
+# ---------------------------------------------------------------- training
+
+
+def _train(
+    args: ArgParser, argv: list[str], inputs: RunInputs, env_info: dict[str, Any], agent: Any, seed: int, world: int
+) -> int:
+    from mimickit.learning import mp_util
+
+    max_samples = args.parse_int("max_samples", NO_LIMIT)
+    model_file = args.parse_string("model_file", "")
+    resumed = bool(model_file) and agent.get_iteration() > 0
+    if resumed and agent.get_sample_count() >= max_samples:
+        raise MimicKitError(
+            f"{model_file} already has {agent.get_sample_count()} samples, which reaches --max_samples {max_samples}:"
+            " nothing to train (give a larger --max_samples to continue it)"
+        )
+    folder = RunFolder(Path(args.parse_string("out_dir", "output/")).resolve())
+    root = mp_util.is_root_proc()
+    if root:
+        effective = _effective_values(args, inputs, env_info, agent, folder, max_samples, world)
+        resume = None
+        if resumed:
+            resume = {"model_file": effective["model_file"], "iteration": agent.get_iteration(),
+                      "samples": agent.get_sample_count()}  # fmt: skip
+        _start_run_folder(folder, args, argv, inputs, effective, seed, resume)
+    signals = _install_stop_handlers(agent)
+    try:
+        summary = agent.train_model(
+            max_samples=max_samples,
+            out_dir=str(folder.path),
+            save_int_models=args.parse_bool("save_int_models", False),
+            logger_type=args.parse_string("logger", "txt"),
+        )
+    except Exception as e:  # noqa: BLE001 - any error ends the run as failed, with its one line
+        line = _one_line(e)
+        if root:
+            folder.write_state(EndState.FAILED, line, iteration=agent.get_iteration(), samples=agent.get_sample_count())
+        if not isinstance(e, MimicKitError):
+            traceback.print_exc()
+        print(f"error: {line}", file=sys.stderr, flush=True)
+        return ExitCode.FAILED
+    state, reason, code = _end_state(summary, max_samples, signals)
+    if root:
+        folder.write_state(state, reason, iteration=summary.iterations, samples=summary.samples)
+        if state != EndState.DIVERGED:  # the divergence line is already on the terminal
+            print(f"{state.value}: {reason}", flush=True)
+    return code
+
+
+def _end_state(summary: Any, max_samples: int, signals: list[str]) -> tuple[EndState, str, int]:
+    done = f"iteration {summary.iterations}, {summary.samples} samples"
+    if summary.diverged:
+        return EndState.DIVERGED, summary.diverged, ExitCode.DIVERGED
+    if summary.stopped:
+        by = signals[0] if signals else "a stop request"
+        return EndState.STOPPED, f"stopped by {by} at {done}; model.pt saved", ExitCode.OK
+    return EndState.FINISHED, f"reached max_samples {max_samples} at {done}", ExitCode.OK
+
+
+def _effective_values(
+    args: ArgParser,
+    inputs: RunInputs,
+    env_info: dict[str, Any],
+    agent: Any,
+    folder: RunFolder,
+    max_samples: int,
+    world: int,
+) -> dict[str, Any]:
+    """Every value the run uses, whether given, from the arg file, from a config or a default."""
+    cfg = agent.config
+    model_file = args.parse_string("model_file", "")
+    data_dir = args.parse_string("data_dir", "")
+    return {
+        "mode": "train",
+        "num_envs": agent.get_num_envs(),
+        "max_samples": max_samples if max_samples < NO_LIMIT else None,
+        "devices": args.parse_strings("devices") or default_devices(),
+        "world_size": world,
+        "engine_config": inputs.engine_file,
+        "env_config": inputs.env_file,
+        "agent_config": inputs.agent_file,
+        **env_info,
+        "agent_name": cfg.agent_name,
+        "steps_per_iter": cfg.steps_per_iter,
+        "iters_per_output": cfg.iters_per_output,
+        "test_episodes": cfg.test_episodes,
+        "out_dir": str(folder.path),
+        "model_file": str(Path(model_file).resolve()) if model_file else None,
+        "logger": args.parse_string("logger", "txt"),
+        "save_int_models": args.parse_bool("save_int_models", False),
+        "data_dir": str(Path(data_dir).expanduser().resolve()) if data_dir else None,
+        "torch_threads": torch.get_num_threads(),
+    }
+
+
+def _start_run_folder(
+    folder: RunFolder,
+    args: ArgParser,
+    argv: list[str],
+    inputs: RunInputs,
+    effective: dict[str, Any],
+    seed: int,
+    resume: dict[str, Any] | None,
+) -> None:
+    """Configs as trained, args.json and state.json `running` (rank 0), before the first iteration."""
+    from mimickit.run_record import args_record
+
+    folder.path.mkdir(parents=True, exist_ok=True)
+    for role, src in (("engine", inputs.engine_file), ("env", inputs.env_file), ("agent", inputs.agent_file)):
+        if src:
+            text = _env_config_text(src, inputs.motion_file) if role == "env" else Path(src).read_text()
+            atomic_write_bytes(folder.config_file(role), text.encode())
+    table = {k: args.parse_strings(k) for k in args.all_keys()}
+    source = "rand_seed" if args.parse_int("rand_seed", -1) >= 0 else "drawn"
+    previous = folder.read_args() if resume is not None else None
+    folder.write_args(args_record(argv, table, effective, seed, source, resume, previous))
+    folder.write_state(EndState.RUNNING, "", iteration=resume["iteration"] if resume else 0,
+                       samples=resume["samples"] if resume else 0)  # fmt: skip
+
+
+def _env_config_text(env_file: str, motion_file: str | None) -> str:
+    """The env config as trained: the file itself, or (with `--motion_file`) its mapping with
+    `motion_file` replaced, under a comment saying so."""
+    if motion_file is None:
+        return Path(env_file).read_text()
+    raw = load_yaml(env_file)
+    fields = raw["env"] if isinstance(raw.get("env"), dict) else raw
+    fields["motion_file"] = motion_file
+    header = f"# {env_file} as trained: motion_file replaced by --motion_file\n"
+    return header + yaml.safe_dump(raw, sort_keys=False, default_flow_style=None)
+
+
+def _one_line(e: BaseException) -> str:
+    text = str(e).strip()
+    first = text.splitlines()[0] if text else ""
+    return first if isinstance(e, MimicKitError) else f"{e.__class__.__name__}: {first}".rstrip(": ")
+
+
 def _config_path(args: ArgParser, key: str, required: bool = False) -> str | None:
     value = args.parse_string(key, "")
     if not value:
@@ -124,26 +323,21 @@ def _config_path(args: ArgParser, key: str, required: bool = False) -> str | Non
     return str(path)
 
 
-def _copy_configs(out_dir: Path, env_file: str, engine_file: str | None, agent_file: str | None) -> None:
-    for src, name in (
-        (engine_file, "engine_config.yaml"),
-        (env_file, "env_config.yaml"),
-        (agent_file, "agent_config.yaml"),
-    ):
-        if src:
-            shutil.copyfile(src, out_dir / name)
+def _install_stop_handlers(agent: Any) -> list[str]:
+    """SIGTERM / SIGINT ask the agent to stop; the returned list collects the signals' names."""
+    received: list[str] = []
 
-
-def _install_stop_handlers(agent: Any) -> None:
     def stop(signum: int, _frame: Any) -> None:
+        received.append(signal.Signals(signum).name)
         agent.request_stop()
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    return received
 
 
-def _worker(rank: int, world: int, devices: list[str], port: int, argv: list[str]) -> None:
-    run(rank, world, devices[rank], port, argv)
+def _worker(rank: int, world: int, devices: list[str], port: int, argv: list[str], seed: int) -> None:
+    run(rank, world, devices[rank], port, argv, seed)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -154,14 +348,16 @@ def main(argv: list[str] | None = None) -> int:
         devices = args.parse_strings("devices") or default_devices()
         world = len(devices)
         port = args.parse_int("master_port", 0) or free_port()
+        seed = draw_seed(args)[0]  # drawn once, so every process and args.json share it
         if world > 1:
             import torch.multiprocessing as mp
 
             ctx = mp.get_context("spawn")
-            procs = [ctx.Process(target=_worker, args=(r, world, devices, port, argv)) for r in range(1, world)]
+            worker_args = [(r, world, devices, port, argv, seed) for r in range(1, world)]
+            procs = [ctx.Process(target=_worker, args=a) for a in worker_args]
             for p in procs:
                 p.start()
-        result = run(0, world, devices[0], port, argv)
+        result = run(0, world, devices[0], port, argv, seed)
         if world > 1:
             for p in procs:
                 p.join()
@@ -169,17 +365,18 @@ def main(argv: list[str] | None = None) -> int:
                     raise MimicKitError(f"worker process exited with code {p.exitcode}")
     except MimicKitError as e:
         print(f"error: {e}", file=sys.stderr)
-        return 2
-    if result is not None:
-        if args.has_key("json") and args.parse_bool("json", True):
-            print(json.dumps(result))
-        else:
-            print(f"Mean Return: {result['mean_return']:.4f}")
-            print(f"Mean Episode Length: {result['mean_episode_length']:.2f}")
-            print(f"Episodes: {result['episodes']}")
-            for k, v in result.get("tracking", {}).items():
-                print(f"Tracking {k}: {v:.4f}")
-    return 0
+        return ExitCode.REFUSED
+    if isinstance(result, int):
+        return result
+    if args.has_key("json") and args.parse_bool("json", True):
+        print(json.dumps(result))
+    else:
+        print(f"Mean Return: {result['mean_return']:.4f}")
+        print(f"Mean Episode Length: {result['mean_episode_length']:.2f}")
+        print(f"Episodes: {result['episodes']}")
+        for k, v in result.get("tracking", {}).items():
+            print(f"Tracking {k}: {v:.4f}")
+    return ExitCode.OK
 
 
 if __name__ == "__main__":

@@ -7,13 +7,19 @@ this module, so a name is spelt once. A run folder holds:
     engine_config.yaml   the configs as trained (`--motion_file` applied to env_config.yaml)
     env_config.yaml
     agent_config.yaml
-    log.txt              the reference's text log, one row per output iteration
-    metrics.jsonl        one JSON object per iteration, plus one marker row per resume
+    log.txt              the reference's text log, one row per output iteration; `# ...` note lines
+                         (e.g. why a run diverged) are comments to numpy.genfromtxt and `mimickit plot`
+    metrics.jsonl        one JSON object per iteration (NaN/inf kept as json's NaN/Infinity tokens), plus
+                         one marker row per resume (`resume_row`; rows with an `event` key hold no metrics)
     model.pt             the newest finite checkpoint
     int_models/          model_{iteration:010d}.pt with --save_int_models
     console.log          stdout and stderr, written by whoever launched the trainer (the studio)
     state.json           the run's state: running, then finished / stopped / diverged / failed with
                          the line that says why (`write_state`)
+
+The trainer's exit code says the same as the end state (`ExitCode`): 0 finished or stopped, 1 failed
+after the run started, 2 refused before anything started (one `error:` line, the folder untouched),
+3 diverged.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import asdict, dataclass, field
-from enum import Enum
+from enum import Enum, IntEnum
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +43,17 @@ MODEL_FILE = "model.pt"
 INT_MODELS_DIR = "int_models"
 CONSOLE_FILE = "console.log"
 STATE_FILE = "state.json"
+LOG_NOTE_PREFIX = "# "
+EVENT_KEY = "event"
+RESUME_EVENT = "resume"
+ARGS_FORMAT = 1
+
+
+class ExitCode(IntEnum):
+    OK = 0  # finished or stopped
+    FAILED = 1  # an error after the run started (state failed)
+    REFUSED = 2  # bad input: nothing started, nothing written
+    DIVERGED = 3
 
 
 class EndState(str, Enum):
@@ -61,6 +78,25 @@ class RunState:
 
 def int_model_name(iteration: int) -> str:
     return f"model_{iteration:010d}.pt"
+
+
+def resume_row(iteration: int, samples: int, wall_time_hours: float, max_samples: int | None) -> dict[str, Any]:
+    """metrics.jsonl's marker of a resume: where the run continues from, and its new budget
+    (`max_samples` None: no limit)."""
+    budget = max_samples if max_samples is not None and max_samples < 2**62 else None
+    return {
+        EVENT_KEY: RESUME_EVENT,
+        "iteration": int(iteration),
+        "samples": int(samples),
+        "wall_time": float(wall_time_hours),
+        "max_samples": budget,
+        "time": time.time(),
+    }
+
+
+def is_event_row(row: dict[str, Any]) -> bool:
+    """A marker row of metrics.jsonl (not an iteration's metrics)."""
+    return EVENT_KEY in row
 
 
 class RunFolder:

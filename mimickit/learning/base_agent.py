@@ -23,6 +23,7 @@ rank stops at the same iteration. `test_model` also stops between steps.
 from __future__ import annotations
 
 import abc
+import copy
 import time
 from dataclasses import asdict, dataclass
 from enum import IntEnum
@@ -37,14 +38,15 @@ from mimickit.envs.base_env import BaseEnv, DoneFlags, EnvMode
 from mimickit.learning import checkpoint, mp_util
 from mimickit.learning.agent_config import BaseAgentConfig
 from mimickit.learning.checkpoint import TRAIN_STATE_KEY
+from mimickit.learning.divergence import first_non_finite, gradient_norm
 from mimickit.learning.experience_buffer import ExperienceBuffer
 from mimickit.learning.logger import Logger
 from mimickit.learning.mp_optimizer import MPOptimizer
 from mimickit.learning.normalizer import Normalizer
 from mimickit.learning.return_tracker import ReturnTracker
+from mimickit.run_folder import INT_MODELS_DIR, MODEL_FILE, int_model_name, resume_row
 from mimickit.util.errors import MimicKitError
 
-MODEL_FILE = "model.pt"
 _OBS_CLIP = 10.0
 
 
@@ -75,6 +77,8 @@ class TrainSummary:
     stopped: bool
     """True when `request_stop()` ended training before `max_samples`."""
     model_file: Path
+    diverged: str = ""
+    """The reason line when the divergence guard ended training (`diverged at iteration N: ...`)."""
 
 
 class BaseAgent(nn.Module, abc.ABC):
@@ -111,15 +115,20 @@ class BaseAgent(nn.Module, abc.ABC):
     def train_model(
         self, max_samples: int, out_dir: str | Path, save_int_models: bool = False, logger_type: str = "txt"
     ) -> TrainSummary:
-        """Train until the global sample count reaches `max_samples` or `request_stop()` is called.
+        """Train until the global sample count reaches `max_samples`, `request_stop()` is called or an
+        iteration diverges.
 
         Every `iters_per_output` iterations (and the last): test episodes, a log.txt row, `model.pt`
         (and `int_models/model_{iter:010d}.pt` with `save_int_models`). Every iteration: the terminal
-        table and a metrics.jsonl line.
+        table and a metrics.jsonl line; a resumed run first writes one resume marker row there.
+        Divergence guard: an iteration with a non-finite observation, action, reward, loss, gradient
+        norm or weight ends training. Its metrics row keeps the NaN/inf values; the reason goes to the
+        terminal and to log.txt (as a `#` line); the agent is rolled back to the finite state that
+        iteration started from, which `model.pt` then holds (so model.pt never holds non-finite weights).
         """
         out_dir = Path(out_dir)
         model_file = out_dir / MODEL_FILE
-        int_dir = out_dir / "int_models" if save_int_models else None
+        int_dir = out_dir / INT_MODELS_DIR if save_int_models else None
         if mp_util.is_root_proc():
             out_dir.mkdir(parents=True, exist_ok=True)
             checkpoint.remove_stale_temp_files(out_dir)
@@ -134,15 +143,21 @@ class BaseAgent(nn.Module, abc.ABC):
         self._train_start = time.time()
         if resumed:
             logger.print(f"Resuming at iteration {self._iter}, {self._sample_count} samples")
+            logger.write_event(resume_row(self._iter, self._sample_count, self._current_wall_hours(), max_samples))
 
         saved_iter = None
+        diverged = ""
         try:
             while self._sample_count < max_samples and not self._sync_stop_flag():
+                before = self._snapshot()
                 train_info = self._train_iter()
                 if train_info is None:  # stopped mid-rollout: the partial iteration is discarded
                     break
                 self._sample_count = self._sample_offset + mp_util.reduce_sum(self._exp_buffer.get_total_samples())
-                output = self._iter % self.config.iters_per_output == 0 or self._sample_count >= max_samples
+                non_finite = self._sync_non_finite()
+                output = not non_finite and (
+                    self._iter % self.config.iters_per_output == 0 or self._sample_count >= max_samples
+                )
                 if output:
                     test = self.test_model(self.config.test_episodes)
                     if test.num_eps > 0 or not self._stop_requested:  # keep the last result if a stop cut it short
@@ -150,23 +165,26 @@ class BaseAgent(nn.Module, abc.ABC):
                 self._log_train_info(logger, train_info, self._env.record_diagnostics())
                 logger.print_log()
                 logger.write_metrics(output)
+                if non_finite:
+                    diverged = f"diverged at iteration {self._iter}: {non_finite}"
+                    logger.print(diverged)
+                    logger.write_note(diverged)
+                    self._roll_back(before)
+                    if saved_iter != self._iter - 1:  # else model.pt already holds these weights
+                        self._write_checkpoint(model_file, self._iter)
+                    break
                 if output:
-                    logger.write_log()
-                    self._write_checkpoint(model_file, self._iter + 1)
-                    if int_dir is not None:
-                        self._write_checkpoint(int_dir / f"model_{self._iter:010d}.pt", self._iter + 1)
+                    self._write_output(logger, model_file, int_dir)
                     saved_iter = self._iter
-                    self._train_return_tracker.reset()
-                    self._curr_obs, self._curr_info = self._reset_envs()
                 self._iter += 1
-            stopped = self._sample_count < max_samples
+            stopped = not diverged and self._sample_count < max_samples
             if stopped and saved_iter != self._iter - 1 and self._iter > 0:
                 self._write_checkpoint(model_file, self._iter)
         finally:
             self._wall_time_offset = self._current_wall_hours()
             self._train_start = None
             logger.close()
-        return TrainSummary(self._iter, self._sample_count, stopped, model_file)
+        return TrainSummary(self._iter, self._sample_count, stopped, model_file, diverged)
 
     def test_model(self, num_episodes: int) -> EpisodeStats:
         """Run the deterministic policy (actor mean) until each env has finished at least
@@ -362,7 +380,55 @@ class BaseAgent(nn.Module, abc.ABC):
         info["mean_return"] = self._train_return_tracker.get_mean_return()
         info["mean_ep_len"] = self._train_return_tracker.get_mean_ep_len()
         info["num_eps"] = self._train_return_tracker.get_episodes()
+        self._non_finite = self._first_non_finite(data_info, train_info)
         return info
+
+    def _first_non_finite(self, data_info: dict[str, float], train_info: dict[str, float]) -> str | None:
+        """This iteration's first non-finite quantity, in the order they arose: the rollout's
+        observations, actions and rewards, the targets' statistics (before the update), the losses,
+        the last update's gradient norm, then the weights and normalisers."""
+        buf = self._exp_buffer
+        rollout = [("obs", "observation"), ("next_obs", "observation"), ("action", "action"), ("reward", "reward")]
+        quantities: list[tuple[str, torch.Tensor | float]] = [
+            (label, buf.get_data(name)) for name, label in rollout if buf.has(name)
+        ]
+        quantities += [(k.replace("_", " "), v) for k, v in {**data_info, **train_info}.items()]
+        grad_norm = gradient_norm(self.parameters())
+        if grad_norm is not None:
+            quantities.append(("gradient norm", grad_norm))
+        quantities += [(f"weight {k}", v) for k, v in self.state_dict().items()]
+        return first_non_finite(quantities)
+
+    def _sync_non_finite(self) -> str | None:
+        """The divergence reason, the same on every process (one all-reduce per iteration)."""
+        reason = self._non_finite
+        if mp_util.enable_mp() and mp_util.reduce_max(int(reason is not None)) and reason is None:
+            reason = "a non-finite value on another process"
+        return reason
+
+    def _snapshot(self) -> dict[str, Any]:
+        """Copies of what one iteration changes (weights, normalisers, optimiser states, sample count),
+        so that a diverged iteration can be undone; a few MB for this project's networks."""
+        return {
+            "model": {k: v.detach().clone() for k, v in self.state_dict().items()},
+            "optimizers": {name: copy.deepcopy(opt.state_dict()) for name, opt in self._optimizers().items()},
+            "samples": self._sample_count,
+        }
+
+    def _roll_back(self, snapshot: dict[str, Any]) -> None:
+        self.load_state_dict(snapshot["model"], strict=True)
+        for name, opt in self._optimizers().items():
+            opt.load_state_dict(snapshot["optimizers"][name])
+        self._sample_count = snapshot["samples"]
+
+    def _write_output(self, logger: Logger, model_file: Path, int_dir: Path | None) -> None:
+        """An output iteration's log.txt row and checkpoints; then fresh episodes for the next rollout."""
+        logger.write_log()
+        self._write_checkpoint(model_file, self._iter + 1)
+        if int_dir is not None:
+            self._write_checkpoint(int_dir / int_model_name(self._iter), self._iter + 1)
+        self._train_return_tracker.reset()
+        self._curr_obs, self._curr_info = self._reset_envs()
 
     def _rollout_train(self, num_steps: int) -> bool:
         can_break = not mp_util.enable_mp()  # other ranks would wait forever in the next collective

@@ -8,7 +8,11 @@ for per-term means that only go to metrics.jsonl and TensorBoard), then:
   studio can tail it: every entry under its lower-cased key (`Train_Return` → `train_return`,
   `Wall_Time` → `wall_time` in hours, as the text log), the `log_metric` entries (`reward_terms.<name>`,
   `tracking.<name>`), `output` (whether this iteration ran the test episodes; otherwise the test
-  values are the previous ones) and `time` (unix seconds);
+  values are the previous ones) and `time` (unix seconds). A NaN or infinite value stays one
+  (Python json's `NaN` / `Infinity` / `-Infinity` tokens), so a diverged run's curves show it;
+* `write_event(row)`: a marker row, e.g. a resume (`mimickit.run_folder.resume_row`); it has an
+  `event` key and no metric columns, so readers tell it from iteration rows;
+* `write_note(line)`: a `# line` in log.txt (a comment to numpy.genfromtxt and `mimickit plot`);
 * `write_log()` on output iterations: a row of `log.txt` in the reference's columns (header of all
   keys on the first call, each value's `str()` left-justified to 25 characters) and, for
   `logger_type` "tb", TensorBoard scalars `<collection>/<key>` at step `Samples`.
@@ -32,10 +36,9 @@ import torch
 from tqdm import tqdm
 
 from mimickit.learning import mp_util
+from mimickit.run_folder import LOG_FILE, LOG_NOTE_PREFIX, METRICS_FILE
 from mimickit.util.errors import MimicKitError
 
-LOG_FILE = "log.txt"
-METRICS_FILE = "metrics.jsonl"
 LOGGER_TYPES = ("txt", "tb", "wandb")
 _COL_WIDTH = 25
 _VAL_WIDTH = 15
@@ -110,12 +113,27 @@ class Logger:
     def write_metrics(self, output: bool) -> None:
         """Append this iteration's JSON line to metrics.jsonl (rank 0)."""
         if self._root and self._metrics_file is not None:
-            row: dict[str, Any] = {k.lower(): _json_val(e.val) for k, e in self._entries.items()}
-            row.update({k: _json_val(v) for k, v in self._metrics.items()})
+            row: dict[str, Any] = {k.lower(): e.val for k, e in self._entries.items()}
+            row.update(self._metrics)
             row["output"] = output
             row["time"] = time.time()
-            self._metrics_file.write(json.dumps(row) + "\n")
-            self._metrics_file.flush()
+            self._write_row(row)
+
+    def write_event(self, row: dict[str, Any]) -> None:
+        """Append a marker row (with an `event` key) to metrics.jsonl (rank 0)."""
+        if self._root and self._metrics_file is not None:
+            self._write_row(row)
+
+    def write_note(self, line: str) -> None:
+        """Append `# line` to log.txt (rank 0): a note between the table's rows, e.g. why training stopped."""
+        if self._root and self._log_file is not None:
+            self._log_file.write(f"{LOG_NOTE_PREFIX}{line}\n")
+            self._log_file.flush()
+
+    def _write_row(self, row: dict[str, Any]) -> None:
+        assert self._metrics_file is not None
+        self._metrics_file.write(json.dumps(row) + "\n")  # allow_nan: NaN stays NaN
+        self._metrics_file.flush()
 
     def write_log(self) -> None:
         """Write a log.txt row (header first) and the TensorBoard / wandb scalars (rank 0)."""
@@ -160,9 +178,8 @@ class Logger:
     def _open_files(self, append: bool, logger_type: str, run_config: dict[str, Any] | None) -> None:
         self._out_dir.mkdir(parents=True, exist_ok=True)
         log_path = self._out_dir / LOG_FILE
-        if append and log_path.is_file() and log_path.stat().st_size > 0:
-            with open(log_path, newline=None) as f:
-                self._header = f.readline().split()
+        if append and log_path.is_file():
+            self._header = _read_header(log_path)
         self._log_file = open(log_path, "a" if append else "w")  # noqa: SIM115 - kept open for the run
         self._metrics_file = open(self._out_dir / METRICS_FILE, "a" if append else "w")  # noqa: SIM115
         if logger_type == "tb":
@@ -195,6 +212,15 @@ class Logger:
             print(msg, flush=True)
 
 
+def _read_header(log_path: Path) -> list[str] | None:
+    """The column names of an existing log.txt: its first line that is not a note."""
+    with open(log_path, newline=None) as f:
+        for line in f:
+            if line.strip() and not line.startswith(LOG_NOTE_PREFIX.strip()):
+                return line.split()
+    return None
+
+
 def _format_val(v: float | int) -> str:
     return str(v) if isinstance(v, int) else f"{v:8.3g}"
 
@@ -202,12 +228,6 @@ def _format_val(v: float | int) -> str:
 def _row(vals: list[Any]) -> str:
     cells = [str(v) for v in vals]
     return "".join(c.ljust(_COL_WIDTH) if len(c) < _COL_WIDTH else c + " " for c in cells).rstrip() + "\n"
-
-
-def _json_val(v: float | int) -> float | int | None:
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
 
 
 def _metric_collection(name: str) -> str:

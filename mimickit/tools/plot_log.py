@@ -1,7 +1,9 @@
 """Learning curves from training logs: `mimickit plot` (the reference's `tools/plot_log`, spec §7).
 
 Reads `log.txt` (a header row of column names, then whitespace-separated rows, one per output
-iteration) or `metrics.jsonl` (one JSON object per iteration), or a run folder holding either. Column
+iteration; `# ...` note lines skipped) or `metrics.jsonl` (one JSON object per iteration; NaN and
+Infinity tokens read as such; marker rows with an `event` key, e.g. resumes, are not data rows: they
+are drawn as dotted vertical lines), or a run folder holding either. Column
 names are compared lower-cased, so `Test_Return` (log.txt) and `test_return` (metrics.jsonl) are the
 same column. Several runs are overlaid; each chosen column gets its own subplot.
 """
@@ -14,12 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
+from mimickit.run_folder import EVENT_KEY, LOG_FILE, LOG_NOTE_PREFIX, METRICS_FILE
 from mimickit.util.errors import MimicKitError
 
 X_COLUMNS = ("samples", "iteration", "wall_time")
 DEFAULT_COLUMNS = ("test_return", "train_return", "test_episode_length", "train_episode_length")
 X_LABELS = {"samples": "samples (env steps)", "iteration": "iteration", "wall_time": "wall time (hours)"}
-RUN_FILES = ("metrics.jsonl", "log.txt")  # looked for in this order when a run folder is given
+RUN_FILES = (METRICS_FILE, LOG_FILE)  # looked for in this order when a run folder is given
 FIG_WIDTH_IN, SUBPLOT_HEIGHT_IN, DPI = 8.0, 2.4, 100
 
 Columns = dict[str, np.ndarray]
@@ -45,14 +48,16 @@ def read_log(path: str | Path) -> Columns:
         text = p.read_text()
     except (OSError, UnicodeDecodeError) as e:
         raise MimicKitError(f"{p}: cannot read ({e.__class__.__name__})") from None
-    cols = _read_jsonl(p, text) if p.suffix == ".jsonl" else _read_table(p, text)
+    cols = _columns(_read_jsonl(p, text)) if p.suffix == ".jsonl" else _read_table(p, text)
     if not cols or not len(next(iter(cols.values()))):
         raise MimicKitError(f"{p}: no rows")
     return cols
 
 
 def _read_table(p: Path, text: str) -> Columns:
-    lines = [ln.split() for ln in text.splitlines() if ln.strip()]  # splitlines: "\n" and the reference's "\r"
+    # splitlines: "\n" and the reference's "\r"; "# ..." lines are the trainer's notes (why a run stopped)
+    note = LOG_NOTE_PREFIX.strip()
+    lines = [ln.split() for ln in text.splitlines() if ln.strip() and not ln.startswith(note)]
     if not lines:
         raise MimicKitError(f"{p}: empty file")
     header = [h.lower() for h in lines[0]]
@@ -68,7 +73,20 @@ def _read_table(p: Path, text: str) -> Columns:
     return {name: values[:, i] for i, name in enumerate(header)}
 
 
-def _read_jsonl(p: Path, text: str) -> Columns:
+def read_events(path: str | Path) -> list[dict]:
+    """The marker rows (with an `event` key, e.g. resumes) of a metrics.jsonl; none for a log.txt."""
+    p = find_log(path)
+    if p.suffix != ".jsonl":
+        return []
+    try:
+        text = p.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise MimicKitError(f"{p}: cannot read ({e.__class__.__name__})") from None
+    return [row for row in _read_jsonl(p, text) if EVENT_KEY in row]
+
+
+def _read_jsonl(p: Path, text: str) -> list[dict]:
+    """Every JSON object of the file, data and marker rows alike."""
     lines = text.splitlines()
     if lines and not text.endswith("\n"):
         lines = lines[:-1]  # a trainer may be writing the last line right now
@@ -83,13 +101,18 @@ def _read_jsonl(p: Path, text: str) -> Columns:
         if not isinstance(row, dict):
             raise MimicKitError(f"{p}: line {num} is not a JSON object")
         rows.append(row)
+    return rows
+
+
+def _columns(all_rows: list[dict]) -> Columns:
+    rows = [row for row in all_rows if EVENT_KEY not in row]
     names = list(dict.fromkeys(k for row in rows for k in row))
     return {n.lower(): np.array([_number(row.get(n)) for row in rows]) for n in names if _is_numeric(rows, n)}
 
 
 def _is_numeric(rows: list[dict], name: str) -> bool:
-    """A column whose values are numbers or missing (None is how metrics.jsonl writes NaN, so an all-None
-    column is still one); `output` is a flag, kept as 0/1 because it tells which rows hold fresh tests."""
+    """A column whose values are numbers or missing (older metrics.jsonl files wrote NaN as null, so an
+    all-null column is still one); `output` is a flag, kept as 0/1 because it tells which rows hold fresh tests."""
     return all(isinstance(row[name], (int, float)) for row in rows if row.get(name) is not None)
 
 
@@ -112,6 +135,15 @@ def curve(cols: Columns, x: str, y: str, source: str | Path) -> tuple[np.ndarray
     if prefix in ("train", "test") and y != episodes and episodes in cols:
         keep &= cols[episodes] > 0
     return cols[x][keep], cols[y][keep]
+
+
+def _draw_events(axes: np.ndarray, events: list[dict], x: str, color: str) -> None:
+    """A dotted vertical line in every subplot where the run was resumed."""
+    for event in events:
+        at = event.get(x)
+        if isinstance(at, (int, float)) and math.isfinite(at):
+            for ax in axes:
+                ax.axvline(at, color=color, linestyle=":", linewidth=1.0, alpha=0.8)
 
 
 def run_labels(paths: list[Path]) -> list[str]:
@@ -141,6 +173,7 @@ def plot_logs(
     # Read and check everything before drawing, so a bad column fails without a half-made figure. A column
     # that only some runs have (AMP has no tracking errors, ADD has) is drawn for those; in none, an error.
     logs = [read_log(f) for f in files]
+    events = [read_events(f) for f in files]
     for y in ys:
         if not any(y in cols for cols in logs):
             curve(logs[0], x, y, files[0] if len(files) == 1 else ", ".join(map(str, files)))  # raises
@@ -154,6 +187,7 @@ def plot_logs(
             for ax, points in zip(axes[:, 0], run, strict=True):
                 if points is not None:  # the run's colour stays its own in every subplot
                     (handles[label],) = ax.plot(*points, label=label, linewidth=1.2, color=f"C{i % 10}")
+            _draw_events(axes[:, 0], events[i], x, f"C{i % 10}")
         for ax, y in zip(axes[:, 0], ys, strict=True):
             ax.set_ylabel(y)
             ax.grid(alpha=0.3)

@@ -117,7 +117,11 @@ def test_resume_continues_iterations_samples_and_optimizer(tmp_path):
 
     summary = resumed.train_model(5 * SAMPLES_PER_ITER, tmp_path)
     assert summary.iterations == 5 and summary.samples == 5 * SAMPLES_PER_ITER
-    rows = read_metrics(tmp_path / "metrics.jsonl")
+    all_rows = read_metrics(tmp_path / "metrics.jsonl")
+    marker = all_rows[3]
+    assert marker["event"] == "resume" and (marker["iteration"], marker["samples"]) == (3, 3 * SAMPLES_PER_ITER)
+    assert marker["max_samples"] == 5 * SAMPLES_PER_ITER
+    rows = [r for r in all_rows if "event" not in r]
     assert [r["iteration"] for r in rows] == [0, 1, 2, 3, 4]
     assert [r["samples"] for r in rows] == [SAMPLES_PER_ITER * (i + 1) for i in range(5)]
     assert rows[3]["wall_time"] >= rows[2]["wall_time"]
