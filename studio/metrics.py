@@ -1,17 +1,27 @@
-"""Reading a run's `metrics.jsonl` (one JSON object per line, one line per iteration), and following it
-as the trainer appends: the source of the live curves.
+"""Reading a run's `metrics.jsonl` (one JSON object per line, one line per iteration, plus a marker row
+`{"event": "resume", ...}` per resume), and following it as the trainer appends: the source of the live
+curves.
+
+The trainer writes a non-finite value as the JSON tokens NaN / Infinity / -Infinity, which a browser's
+JSON.parse refuses (and Starlette's JSON responses too). Each row leaves here with such a value as
+null and a `nonfinite` object naming it: `{"critic_loss": null, "nonfinite": {"critic_loss": "nan"}}`,
+so the page can mark where a curve went non-finite instead of losing the point.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import math
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
-METRICS_FILE = "metrics.jsonl"
+from mimickit.run_folder import METRICS_FILE
+
+__all__ = ["METRICS_FILE", "follow_rows", "last_rows", "read_rows"]
 HEARTBEAT_S = 15.0
+TAIL_BYTES = 256 * 1024
 
 
 def read_rows(path: Path, start: int = 0) -> list[dict[str, Any]]:
@@ -27,12 +37,40 @@ def read_rows(path: Path, start: int = 0) -> list[dict[str, Any]]:
     return rows[start:]
 
 
+def last_rows(path: Path, n: int = 50) -> list[dict[str, Any]]:
+    """The last `n` complete rows, reading only the file's tail (a run list polls every run)."""
+    try:
+        with path.open("rb") as f:
+            size = f.seek(0, 2)
+            f.seek(max(0, size - TAIL_BYTES))
+            chunk = f.read()
+    except OSError:
+        return []
+    lines = chunk.split(b"\n")[:-1]  # the part after the last newline is not a complete row yet
+    if len(chunk) < size and lines:
+        lines = lines[1:]  # the first line may start mid-row
+    rows = [r for r in (_parse(line) for line in lines[-n:]) if r is not None]
+    return rows
+
+
 def _parse(line: bytes) -> dict[str, Any] | None:
     try:
         row = json.loads(line)
     except ValueError:
         return None  # a corrupt line is skipped, not fatal to the stream
-    return row if isinstance(row, dict) else None
+    return browser_safe(row) if isinstance(row, dict) else None
+
+
+def browser_safe(row: dict[str, Any]) -> dict[str, Any]:
+    """The row with each non-finite number as null, named in `nonfinite` (column -> nan/inf/-inf)."""
+    bad = {k: _token(v) for k, v in row.items() if isinstance(v, float) and not math.isfinite(v)}
+    if not bad:
+        return row
+    return {**{k: (None if k in bad else v) for k, v in row.items()}, "nonfinite": bad}
+
+
+def _token(v: float) -> str:
+    return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
 
 
 async def follow_rows(

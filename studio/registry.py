@@ -20,20 +20,29 @@ from typing import Any
 
 
 class RunStatus(str, Enum):
+    """queued/running/stopping/interrupted are the studio's; the four end states are the run folder's
+    (`mimickit.run_folder.EndState`), read from its state.json when the trainer exits."""
+
     QUEUED = "queued"
     RUNNING = "running"
     STOPPING = "stopping"
-    SUCCEEDED = "succeeded"
-    FAILED = "failed"
+    FINISHED = "finished"  # reached its max_samples
     STOPPED = "stopped"
-    INTERRUPTED = "interrupted"
+    DIVERGED = "diverged"
+    FAILED = "failed"
+    INTERRUPTED = "interrupted"  # its server died while it ran
+
+    @classmethod
+    def _missing_(cls, value: object) -> RunStatus | None:
+        # A registry of an earlier studio called a run that exited 0 "succeeded".
+        return cls.FINISHED if value == "succeeded" else None
 
     @property
     def finished(self) -> bool:
         return self in FINISHED
 
 
-FINISHED = {RunStatus.SUCCEEDED, RunStatus.FAILED, RunStatus.STOPPED, RunStatus.INTERRUPTED}
+FINISHED = {RunStatus.FINISHED, RunStatus.STOPPED, RunStatus.DIVERGED, RunStatus.FAILED, RunStatus.INTERRUPTED}
 ACTIVE = {RunStatus.RUNNING, RunStatus.STOPPING}
 
 _SCHEMA = """
@@ -49,9 +58,12 @@ CREATE TABLE IF NOT EXISTS runs (
     out_dir TEXT NOT NULL,
     exit_code INTEGER,
     command TEXT,                  -- JSON argv of the latest process, recorded for reproducibility
-    attempts INTEGER NOT NULL DEFAULT 0
+    attempts INTEGER NOT NULL DEFAULT 0,
+    reason TEXT                    -- the line that says why it ended (diverged/failed), from the run folder
 )
 """
+# Columns added after the first release: (name, declaration), added to an older registry when opened.
+_ADDED_COLUMNS = [("reason", "TEXT")]
 
 
 @dataclass
@@ -68,6 +80,7 @@ class Run:
     exit_code: int | None
     command: list[str] | None
     attempts: int
+    reason: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -83,6 +96,10 @@ class Registry:
         with self._connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
             db.execute(_SCHEMA)
+            have = {row["name"] for row in db.execute("PRAGMA table_info(runs)")}
+            for name, decl in _ADDED_COLUMNS:
+                if name not in have:
+                    db.execute(f"ALTER TABLE runs ADD COLUMN {name} {decl}")
 
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:

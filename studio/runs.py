@@ -1,8 +1,11 @@
 """The run manager: training runs as subprocesses, at most N at once, the rest queued.
 
-Every run is its own OS process (`mimickit train ...`) in its own process group, writing to its
-`out_dir` (metrics.jsonl, log.txt, model.pt; the manager adds console.log with its stdout/stderr).
-One manager thread starts and reaps all processes. On Linux each child asks the kernel to send it
+Every run is its own OS process (`mimickit train ...`) in its own process group, working in and
+writing to its run folder (`mimickit.run_folder`: args.json, configs, metrics.jsonl, model.pt,
+state.json; the manager adds console.log with its stdout/stderr). When a trainer exits, the run's end
+state (finished / stopped / diverged / failed, with the line that says why) is the one its state.json
+records; the exit code only speaks when the trainer recorded nothing. One manager thread starts and
+reaps all processes. On Linux each child asks the kernel to send it
 SIGTERM when that thread dies, so a killed server never leaves a trainer running that nobody watches:
 the trainer saves its checkpoint, and the next server marks the run `interrupted`, ready to resume.
 """
@@ -24,11 +27,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mimickit.run_folder import MODEL_FILE, EndState, RunFolder
 from mimickit.util.paths import PROJECT_ROOT
 from studio.registry import ACTIVE, Registry, Run, RunStatus
+from studio.run_summary import run_summary, seed_of
 from studio.settings import Settings
 
-CHECKPOINT = "model.pt"
+CHECKPOINT = MODEL_FILE
 POLL_S = 0.2
 
 
@@ -48,6 +53,7 @@ def train_command(
     num_envs: int | None = None,
     max_samples: int | None = None,
     motion_file: str | None = None,
+    rand_seed: int | None = None,
     data_dir: str | Path | None = None,
     model_file: str | Path | None = None,
 ) -> list[str]:
@@ -57,6 +63,7 @@ def train_command(
         "num_envs": num_envs,
         "max_samples": max_samples,
         "motion_file": motion_file,
+        "rand_seed": rand_seed,
         "data_dir": data_dir,
         "model_file": model_file,
     }
@@ -102,21 +109,42 @@ class RunManager:
                 self._kill_at[run_id] = time.monotonic() + self.settings.stop_timeout_s
             return run
 
-    def resume(self, run_id: int) -> Run:
-        """Queue a finished run again: a new process on the same out_dir, from its checkpoint."""
+    def resume(self, run_id: int, max_samples: int | None = None) -> Run:
+        """Queue an ended run again: a new process in the same folder, from its checkpoint, with the
+        budget `max_samples` (total samples, more than it has trained) or the one it had."""
         with self._lock:
             run = self.get(run_id)
             if not run.status.finished:
-                raise RunError(f"run {run_id} is {run.status.value}; only a finished run can be resumed")
-            checkpoint = Path(run.out_dir) / CHECKPOINT
+                raise RunError(f"run {run_id} is {run.status.value}; only a run that ended can be resumed")
+            checkpoint = RunFolder(run.out_dir).model_file
             if not checkpoint.is_file():
                 raise RunError(f"run {run_id} has no checkpoint ({CHECKPOINT}) to resume from")
             config = {**run.config, "model_file": str(checkpoint)}
+            done = run_summary(run.out_dir)["samples"] or 0
+            if max_samples is not None:
+                if max_samples <= done:
+                    raise RunError(
+                        f"max_samples {max_samples} is not more than the {done} samples run {run_id} has trained"
+                    )
+                config["max_samples"] = max_samples
+            elif run.status == RunStatus.FINISHED:
+                raise RunError(
+                    f"run {run_id} reached its budget ({done} samples); give a larger max_samples to continue it"
+                )
             run = self.registry.update(
-                run_id, status=RunStatus.QUEUED, config=config, pid=None, exit_code=None, ended_at=None
+                run_id, status=RunStatus.QUEUED, config=config, pid=None, exit_code=None, ended_at=None, reason=None
             )
         self._wake.set()
         return run
+
+    def again(self, run_id: int) -> Run:
+        """A new run with the same arg file and overrides as run `run_id`, and the seed it used."""
+        run = self.get(run_id)
+        seed = seed_of(run.out_dir)
+        if seed is None:
+            raise RunError(f"run {run_id} recorded no seed (its trainer wrote no args.json yet)")
+        config = {k: v for k, v in run.config.items() if k != "model_file"}
+        return self.submit(f"{run.name} seed {seed}", {**config, "rand_seed": seed})
 
     def delete(self, run_id: int) -> None:
         """Remove the row and the run's folder (only ever a folder inside the runs folder)."""
@@ -167,18 +195,13 @@ class RunManager:
                     self._signal(run, signal.SIGKILL)
 
     def _finish(self, run_id: int, code: int | None) -> None:
-        """Status from how the process ended; `code` None: a process we did not start (no exit code)."""
+        """Status from the run folder's state.json; `code` None: a process we did not start."""
         self._kill_at.pop(run_id, None)
         run = self.registry.find(run_id)
         if run is None:
             return
-        if run.status == RunStatus.STOPPING:
-            status = RunStatus.STOPPED
-        elif code is None:
-            status = RunStatus.INTERRUPTED
-        else:
-            status = RunStatus.SUCCEEDED if code == 0 else RunStatus.FAILED
-        self.registry.update(run_id, status=status, exit_code=code, ended_at=time.time(), pid=None)
+        status, reason = end_status(run, code)
+        self.registry.update(run_id, status=status, reason=reason, exit_code=code, ended_at=time.time(), pid=None)
 
     def _fill_slots(self) -> None:
         active = len(self._procs) + len(self._adopted)
@@ -202,11 +225,16 @@ class RunManager:
             num_envs=cfg.get("num_envs"),
             max_samples=cfg.get("max_samples"),
             motion_file=cfg.get("motion_file"),
+            rand_seed=cfg.get("rand_seed"),
             data_dir=self.settings.data_dir,
             model_file=cfg.get("model_file"),
         )
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        with open(out_dir / "console.log", "ab") as console:
+        # The trainer works in its run folder (MuJoCo's MUJOCO_LOG.TXT and the like land there, not in
+        # the server's directory); the project stays importable for `python -m mimickit.cli`.
+        path = os.pathsep.join(p for p in (str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")) if p)
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": path}
+        spawned = time.time()  # before the trainer can write its state.json: what it writes is newer
+        with open(RunFolder(out_dir).console_file, "ab") as console:
             console.write(f"$ {' '.join(argv)}\n".encode())
             console.flush()
             try:
@@ -215,7 +243,7 @@ class RunManager:
                     stdin=subprocess.DEVNULL,
                     stdout=console,
                     stderr=subprocess.STDOUT,
-                    cwd=PROJECT_ROOT,
+                    cwd=out_dir,
                     env=env,
                     start_new_session=True,  # its own process group: a stop reaches its children too
                     preexec_fn=functools.partial(_die_with_parent, os.getpid()) if _PRCTL else None,
@@ -229,7 +257,7 @@ class RunManager:
             run.id,
             status=RunStatus.RUNNING,
             pid=proc.pid,
-            started_at=time.time(),
+            started_at=spawned,
             command=argv,
             attempts=run.attempts + 1,
         )
@@ -261,6 +289,44 @@ class RunManager:
         if run.pid:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(run.pid, sig)  # pgid == pid: the child leads its own session
+
+
+def end_status(run: Run, code: int | None) -> tuple[RunStatus, str | None]:
+    """How a run's latest process ended: its state.json (when written by that process), else a stop
+    the studio asked for, else the exit code (with the trainer's `error: ...` line as the reason)."""
+    folder = RunFolder(run.out_dir)
+    state = folder.read_state()
+    if state is not None and state.state != EndState.RUNNING and state.updated_at >= (run.started_at or 0.0):
+        return RunStatus(state.state.value), state.reason or None
+    if run.status == RunStatus.STOPPING:
+        return RunStatus.STOPPED, None
+    if code is None:
+        return RunStatus.INTERRUPTED, "its trainer ended while no studio watched it, without recording why"
+    if code < 0:
+        return RunStatus.FAILED, f"the trainer was killed by {_signal_name(-code)}"
+    return RunStatus.FAILED, _error_line(folder) or f"the trainer exited with code {code} without recording why"
+
+
+def _error_line(folder: RunFolder) -> str | None:
+    """The latest process's last `error: ...` line in console.log (how `mimickit` reports a mistake);
+    each process's output starts with the `$ argv` line the manager writes."""
+    try:
+        with folder.console_file.open("rb") as f:
+            f.seek(max(0, f.seek(0, 2) - 64 * 1024))
+            lines = f.read().decode(errors="replace").splitlines()
+    except OSError:
+        return None
+    starts = [i for i, line in enumerate(lines) if line.startswith("$ ")]
+    lines = lines[starts[-1] :] if starts else lines
+    errors = [line.strip() for line in lines if line.startswith("error: ")]
+    return errors[-1][len("error: ") :] if errors else None
+
+
+def _signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
 
 
 def _slug(name: str) -> str:

@@ -1,39 +1,85 @@
-"""Run endpoints: launch, list, inspect, stop, resume, delete, and the live metrics stream."""
+"""Run endpoints: launch, list, inspect, stop, resume (with a new budget), again with a run's seed,
+delete, and the live metrics stream.
+
+Paths take the CLI's forms: `args/x.txt` (the project's args folder, then each data folder's and the
+runs folder's), `data/...` (each data folder in turn), or absolute inside the allowed folders.
+"""
 
 from __future__ import annotations
 
+import difflib
 import json
 import time
 from collections.abc import AsyncIterator
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import StreamingResponse
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
+from mimickit.run_folder import RunFolder
 from studio.api import studio_of
-from studio.metrics import METRICS_FILE, follow_rows, read_rows
+from studio.metrics import follow_rows, read_rows
 from studio.registry import Run
-from studio.runs import CHECKPOINT
-from studio.security import confine
+from studio.run_summary import run_summary
+from studio.security import PathError, confine
+from studio.settings import Settings
 
 router = APIRouter(prefix="/runs", tags=["runs"])
+MOTION_SUFFIXES = (".pkl", ".yaml", ".yml")
+MAX_SEED = 2**31 - 1
 
 
-class LaunchRun(BaseModel):
-    arg_file: str = Field(description="a MimicKit arg file (`args/*.txt` of the project or a data folder)")
-    name: str | None = None
+class StrictBody(BaseModel):
+    """A request body whose unknown keys are refused by name (with the nearest known one)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_keys(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            known = list(cls.model_fields)
+            for key in data:
+                if key not in known:
+                    near = difflib.get_close_matches(str(key), known, n=1)
+                    hint = f"; did you mean {near[0]!r}?" if near else f"; known keys: {', '.join(known)}"
+                    raise ValueError(f"unknown key {key!r}{hint}")
+        return data
+
+
+class LaunchRun(StrictBody):
+    arg_file: str = Field(description="a MimicKit arg file: `args/x.txt`, `data/args/x.txt` or an absolute path")
+    name: str | None = Field(None, max_length=200)
     num_envs: int | None = Field(None, gt=0)
     max_samples: int | None = Field(None, gt=0)
-    motion_file: str | None = Field(None, description="a clip or dataset yaml that overrides the arg file's")
+    motion_file: str | None = Field(None, description="a clip (.pkl) or dataset (.yaml) replacing the env config's")
+    rand_seed: int | None = Field(None, ge=0, le=MAX_SEED, description="the seed (default: the trainer picks one)")
+
+
+class ResumeRun(StrictBody):
+    max_samples: int | None = Field(None, gt=0, description="the new budget: total samples, more than trained")
+
+
+def resolve_arg_file(path: str, settings: Settings) -> Path:
+    """An arg file as the CLI names it: `args/x.txt` is looked up in each args folder (the project's
+    first), anything else is a path of `confine` inside the arg and data folders."""
+    parts = PurePosixPath(path.replace("\\", "/")).parts
+    if len(parts) > 1 and parts[0] == "args":
+        try:
+            return confine(str(PurePosixPath(*parts[1:])), settings.arg_dirs)
+        except PathError as e:
+            if e.status != 404:
+                raise
+            raise PathError(f"arg file not found: {path}", 404) from None
+    return confine(path, [*settings.arg_dirs, *settings.readable_roots])
 
 
 def _run_json(run: Run) -> dict[str, Any]:
     d = run.to_json()
-    out = Path(run.out_dir) if run.out_dir else None
-    d["checkpoint"] = str(out / CHECKPOINT) if out and (out / CHECKPOINT).is_file() else None
+    folder = RunFolder(run.out_dir) if run.out_dir else None
+    d["checkpoint"] = str(folder.model_file) if folder and folder.model_file.is_file() else None
     d["duration_s"] = ((run.ended_at or time.time()) - run.started_at) if run.started_at else None
+    d["summary"] = run_summary(run.out_dir) if folder else None
     return d
 
 
@@ -47,12 +93,14 @@ def launch(body: LaunchRun, request: Request) -> dict[str, Any]:
     """Queue a training run (`mimickit train --arg_file ... --out_dir <runs-dir>/<id>-<name>`); it
     starts when fewer than `--max-concurrent-runs` runs are going."""
     studio = studio_of(request)
-    roots = [*studio.settings.arg_dirs, *studio.settings.readable_roots]
-    arg_file = confine(body.arg_file, roots)
+    arg_file = resolve_arg_file(body.arg_file, studio.settings)
     config: dict[str, Any] = {"arg_file": str(arg_file)}
     if body.motion_file:
-        config["motion_file"] = str(confine(body.motion_file, studio.settings.readable_roots))
-    for key in ("num_envs", "max_samples"):
+        motion = confine(body.motion_file, studio.settings.readable_roots)
+        if motion.suffix not in MOTION_SUFFIXES or not motion.is_file():
+            raise PathError(f"motion_file must be a clip (.pkl) or a dataset (.yaml) file: {body.motion_file}", 400)
+        config["motion_file"] = str(motion)
+    for key in ("num_envs", "max_samples", "rand_seed"):
         if getattr(body, key) is not None:
             config[key] = getattr(body, key)
     name = body.name or f"{arg_file.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
@@ -71,9 +119,17 @@ def stop(run_id: int, request: Request) -> dict[str, Any]:
 
 
 @router.post("/{run_id}/resume")
-def resume(run_id: int, request: Request) -> dict[str, Any]:
-    """A new process in the same out_dir with `--model_file <out_dir>/model.pt`."""
-    return _run_json(studio_of(request).runs.resume(run_id))
+def resume(run_id: int, request: Request, body: ResumeRun | None = None) -> dict[str, Any]:
+    """A new process in the same run folder with `--model_file <out_dir>/model.pt`; `max_samples` sets
+    a new budget (needed to continue a run that reached its budget). The trainer marks the resume with a
+    `{"event": "resume"}` row in metrics.jsonl."""
+    return _run_json(studio_of(request).runs.resume(run_id, body.max_samples if body else None))
+
+
+@router.post("/{run_id}/again", status_code=201)
+def again(run_id: int, request: Request) -> dict[str, Any]:
+    """A new run with the same arg file and overrides, and the seed this run used (from its args.json)."""
+    return _run_json(studio_of(request).runs.again(run_id))
 
 
 @router.delete("/{run_id}", status_code=204)
@@ -87,7 +143,7 @@ def delete(run_id: int, request: Request) -> Response:
 def log_tail(run_id: int, request: Request, lines: int = Query(200, gt=0, le=5000)) -> dict[str, Any]:
     """The last lines of the run's console output."""
     run = studio_of(request).runs.get(run_id)
-    path = Path(run.out_dir) / "console.log"
+    path = RunFolder(run.out_dir).console_file
     text = path.read_text(errors="replace") if path.is_file() else ""
     return {"lines": text.splitlines()[-lines:]}
 
@@ -105,7 +161,7 @@ def metrics(
     once the run has finished; `follow=false`: the rows so far as one JSON list."""
     studio = studio_of(request)
     run = studio.runs.get(run_id)
-    path = Path(run.out_dir) / METRICS_FILE
+    path = RunFolder(run.out_dir).metrics_file
     if not follow:
         return read_rows(path, start)
     if last_event_id and last_event_id.isdigit():

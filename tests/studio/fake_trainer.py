@@ -1,77 +1,114 @@
-"""A stand-in for `mimickit train` that keeps its contract, for testing the studio's run manager.
+"""A stand-in for `mimickit train` that keeps its contract in a fraction of a second, for testing the
+studio's run manager (queue, stop, kill -9, resume, the event stream). Every flow it stands in for
+is also run with the real trainer in test_launch_fields.py / test_real_run.py.
 
     fake_trainer.py --arg_file F --out_dir D [--num_envs N] [--max_samples M] [--motion_file C]
-                    [--data_dir X] [--model_file D/model.pt]
+                    [--rand_seed S] [--data_dir X] [--model_file D/model.pt]
 
-Like the real trainer it writes `D/metrics.jsonl` (one JSON object per iteration, flushed per line),
-`D/log.txt` and `D/model.pt` (atomically, after every iteration), saves a checkpoint and exits 0 on
-SIGTERM, and resumes its iteration count from `--model_file`. Its own keys in the arg file:
-`--fake_rows R` (iterations before exiting, default 10), `--fake_period S` (seconds per iteration,
-default 0.2) and `--fake_exit_code C` (exit code after the last row, default 0).
+It reads its arguments with MimicKit's own parser and refuses what the real trainer refuses: a key
+the trainer does not know (exit 2, `error: ...`), a malformed number. Like the real trainer it writes,
+through `mimickit.run_folder`, `args.json` (argv, effective values, seed), `state.json` (running, then
+finished / stopped / failed), `metrics.jsonl` (one row per iteration, flushed per line; a
+`{"event": "resume"}` row when resumed), `log.txt` and `model.pt` (atomically, after every iteration);
+it saves a checkpoint and exits 0 on SIGTERM, and resumes its counts from `--model_file`. Its own keys
+in the arg file: `--fake_rows R` (iterations before it ends, default 10), `--fake_period S` (seconds
+per iteration, default 0.2) and `--fake_exit_code C` (fail with this exit code after the last row).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
+import random
 import signal
 import sys
-import tempfile
 import time
 from pathlib import Path
 
+from mimickit.run_folder import EndState, RunFolder
+from mimickit.util.arg_parser import ArgParser
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import atomic_write_bytes
 
-def read_arg_file(path: str) -> dict[str, str]:
-    table: dict[str, str] = {}
-    lines = [line for line in Path(path).read_text().splitlines() if not line.strip().startswith("#")]
-    tokens = [t for line in lines for t in line.split()]
-    for key, value in zip(tokens, [*tokens[1:], ""], strict=True):
-        if key.startswith("--"):
-            table[key[2:]] = value
-    return table
+FAKE_KEYS = {"fake_rows", "fake_period", "fake_exit_code"}
+SAMPLES_PER_ENV = 32
 
 
-def save_checkpoint(out_dir: Path, state: dict) -> None:
-    """model.pt written the way the real trainer does: a temporary file renamed over the old one."""
-    fd, tmp = tempfile.mkstemp(prefix=".model.pt.", dir=out_dir)
-    with os.fdopen(fd, "w") as f:
-        json.dump(state, f)
-    os.replace(tmp, out_dir / "model.pt")
+def parse(argv: list[str]) -> ArgParser:
+    args = ArgParser()
+    args.load_args(argv)
+    known = trainer_keys() | FAKE_KEYS
+    for key in args.all_keys():
+        if key not in known:
+            raise MimicKitError(f"unknown argument --{key}")
+    return args
+
+
+def trainer_keys() -> set[str]:
+    """The keys `mimickit train` accepts (its own table, so the stand-in cannot accept more)."""
+    try:
+        from mimickit.run import TRAIN_KEYS
+    except ImportError:  # TEMPORARY until the trainer's key table lands
+        TRAIN_KEYS = "arg_file mode num_envs engine_config env_config agent_config out_dir model_file max_samples test_episodes logger rand_seed devices save_int_models visualize video data_dir json master_port motion_file".split()
+    return set(TRAIN_KEYS)
 
 
 def main() -> int:
-    p = argparse.ArgumentParser()
-    for key in ("arg_file", "out_dir", "num_envs", "max_samples", "motion_file", "data_dir", "model_file"):
-        p.add_argument(f"--{key}")
-    args = p.parse_args()
-    conf = read_arg_file(args.arg_file)
-    rows, period = int(conf.get("fake_rows", 10)), float(conf.get("fake_period", 0.2))
-    out_dir = Path(args.out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    state = {"iteration": 0, "samples": 0}
-    if args.model_file:
-        state = json.loads(Path(args.model_file).read_text())
-    num_envs = int(args.num_envs or 4)
+    try:
+        args = parse(sys.argv[1:])
+        rows, period = args.parse_int("fake_rows", 10), args.parse_float("fake_period", 0.2)
+        num_envs = args.parse_int("num_envs", 4)
+        max_samples = args.parse_int("max_samples", 2**62)
+        seed = args.parse_int("rand_seed", -1)
+    except MimicKitError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    seed = seed if seed >= 0 else random.randrange(2**31)
+    folder = RunFolder(args.parse_string("out_dir"))
+    folder.path.mkdir(parents=True, exist_ok=True)
+    model_file = args.parse_string("model_file")
+    state = json.loads(Path(model_file).read_text()) if model_file else {"iteration": 0, "samples": 0}
+    effective = {"num_envs": num_envs, "max_samples": max_samples, "rand_seed": seed}
+    folder.write_args({"argv": sys.argv[1:], "effective": effective, "seed": seed})
+    folder.write_state(EndState.RUNNING, iteration=state["iteration"], samples=state["samples"])
+
+    def end(end_state: EndState, reason: str = "") -> None:
+        save_checkpoint(folder, state)
+        folder.write_state(end_state, reason, iteration=state["iteration"], samples=state["samples"])
 
     def on_term(signum: int, frame: object) -> None:
-        save_checkpoint(out_dir, state)
+        end(EndState.STOPPED, "stopped by SIGTERM")
         print(f"SIGTERM: checkpoint at iteration {state['iteration']}", flush=True)
         sys.exit(0)
 
     signal.signal(signal.SIGTERM, on_term)
-    print(f"fake trainer: {vars(args)}", flush=True)
+    print(f"fake trainer: {sys.argv[1:]}", flush=True)
+    train(folder, state, rows, period, num_envs, max_samples, resumed=bool(model_file))
+    code = args.parse_int("fake_exit_code", 0)
+    if code:
+        end(EndState.FAILED, f"fake failure with exit code {code}")
+        print(f"error: fake failure with exit code {code}", file=sys.stderr, flush=True)
+    else:
+        end(EndState.FINISHED)
+    return code
+
+
+def train(
+    folder: RunFolder, state: dict, rows: int, period: float, num_envs: int, max_samples: int, resumed: bool
+) -> None:
     start = time.time()
-    with open(out_dir / "metrics.jsonl", "a") as metrics, open(out_dir / "log.txt", "a") as log:
-        while state["iteration"] < rows:
+    with folder.metrics_file.open("a") as metrics, folder.log_file.open("a") as log:
+        if resumed:
+            marker = {"event": "resume", "iteration": state["iteration"], "samples": state["samples"]}
+            metrics.write(json.dumps(marker) + "\n")
+        while state["iteration"] < rows and state["samples"] < max_samples:
             time.sleep(period)
             state["iteration"] += 1
-            state["samples"] += num_envs * 32
+            state["samples"] += num_envs * SAMPLES_PER_ENV
             it = state["iteration"]
             row = {
                 "iteration": it,
                 "samples": state["samples"],
-                "wall_time": time.time() - start,
+                "wall_time": (time.time() - start) / 3600.0,
                 "train_return": 10.0 * it,
                 "test_return": 9.0 * it,
                 "train_episode_length": 20.0 + it,
@@ -85,8 +122,12 @@ def main() -> int:
             metrics.flush()
             log.write(f"iteration {it} samples {state['samples']}\n")
             log.flush()
-            save_checkpoint(out_dir, state)
-    return int(conf.get("fake_exit_code", 0))
+            save_checkpoint(folder, state)
+
+
+def save_checkpoint(folder: RunFolder, state: dict) -> None:
+    """model.pt written the way the real trainer does: whole or not at all."""
+    atomic_write_bytes(folder.model_file, json.dumps(state).encode())
 
 
 if __name__ == "__main__":

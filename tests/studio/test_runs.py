@@ -1,5 +1,7 @@
 """Runs through the real server: subprocess trainers (the fake one that keeps the `mimickit train`
-contract), their statuses, metrics and checkpoints; the queue; a server killed with -9 and restarted."""
+contract; test_launch_fields.py runs the same flows with the real trainer), their end states, metrics and
+checkpoints; the queue; a server killed with -9 and restarted; the API's path forms, "again with this
+seed" and "continue with a budget"."""
 
 from __future__ import annotations
 
@@ -7,6 +9,10 @@ import json
 import os
 from pathlib import Path
 
+import httpx
+
+from mimickit.util.paths import PROJECT_ROOT
+from tests.conftest import DEMO_CLIP
 from tests.studio.conftest import StudioProcess, wait_for, write_arg_file
 
 
@@ -36,22 +42,25 @@ def checkpoint(run: dict) -> dict:
     return json.loads((Path(run["out_dir"]) / "model.pt").read_text())
 
 
-def test_run_goes_running_then_succeeded(studio: StudioProcess) -> None:
+def test_run_goes_running_then_finished(studio: StudioProcess) -> None:
     run = launch(studio, "short", name="first run", num_envs=8)
     assert run["status"] in ("queued", "running")
-    running = wait_status(studio, run["id"], "running", "succeeded")
+    running = wait_status(studio, run["id"], "running", "finished")
     argv = running["command"]  # recorded with the run, as the trainer was started
     assert argv[argv.index("--arg_file") + 1] == str(studio.runs_dir / "args" / "short.txt")
     assert argv[argv.index("--out_dir") + 1] == running["out_dir"]
     assert argv[argv.index("--num_envs") + 1] == "8"
-    done = wait_status(studio, run["id"], "succeeded")
-    assert done["exit_code"] == 0 and done["ended_at"] >= done["started_at"]
+    done = wait_status(studio, run["id"], "finished")
+    assert done["exit_code"] == 0 and done["ended_at"] >= done["started_at"] and done["reason"] is None
     rows = metrics(studio, run["id"])
     assert [r["iteration"] for r in rows] == list(range(1, 9))
     assert {"train_return", "test_return", "reward_terms.pose", "actor_loss"} <= set(rows[0])
     assert done["checkpoint"] and checkpoint(done)["iteration"] == 8
     assert "fake trainer" in (Path(done["out_dir"]) / "console.log").read_text()
     assert Path(done["out_dir"]).parent == studio.runs_dir and "first-run" in done["out_dir"]
+    summary = done["summary"]  # from the run folder, not from what was asked
+    assert summary["num_envs"] == 8 and summary["samples"] == 8 * 8 * 32 and summary["end_state"] == "finished"
+    assert summary["seed"] is not None and summary["test_return"] == 72.0 and summary["elapsed_s"] > 0
 
 
 def test_metrics_stream_follows_the_file(studio: StudioProcess) -> None:
@@ -69,7 +78,7 @@ def test_metrics_stream_follows_the_file(studio: StudioProcess) -> None:
                     break
                 events.append(json.loads(line[6:]))
     assert [e["iteration"] for e in events] == list(range(1, 9))
-    assert ended == {"status": "succeeded"}
+    assert ended == {"status": "finished"}
     # A reconnecting client sends Last-Event-ID (the row index) and gets only what it missed.
     with studio.client.stream("GET", f"/api/runs/{run['id']}/metrics", headers={"Last-Event-ID": "5"}, timeout=30) as r:
         rows = [json.loads(line[6:]) for line in r.iter_lines() if line.startswith('data: {"iter')]
@@ -94,8 +103,8 @@ def test_queue_runs_one_at_a_time(studio: StudioProcess) -> None:
     assert run_of(studio, second["id"])["status"] == "queued"
     studio.post(f"/api/runs/{first['id']}/stop")
     wait_status(studio, first["id"], "stopped")
-    wait_status(studio, second["id"], "running", "succeeded")
-    wait_status(studio, second["id"], "succeeded")
+    wait_status(studio, second["id"], "running", "finished")
+    wait_status(studio, second["id"], "finished")
     # A queued run that is stopped never starts.
     third, fourth = launch(studio, "long"), launch(studio, "short")
     wait_status(studio, third["id"], "running")
@@ -109,7 +118,7 @@ def test_failed_run_and_delete(studio: StudioProcess) -> None:
     write_arg_file(studio.runs_dir, "fails", rows=2, period=0.05, exit_code=3)
     run = launch(studio, "fails")
     failed = wait_status(studio, run["id"], "failed")
-    assert failed["exit_code"] == 3
+    assert failed["exit_code"] == 3 and failed["reason"] == "fake failure with exit code 3"
     out_dir = Path(failed["out_dir"])
     assert out_dir.is_dir()
     assert studio.client.delete(f"/api/runs/{run['id']}").status_code == 204
@@ -149,7 +158,9 @@ def test_server_killed_during_a_run(tmp_path: Path) -> None:
         assert running["command"][-2:] == ["--model_file", str(Path(run["out_dir"]) / "model.pt")]
         assert running["attempts"] == 2 and running["out_dir"] == run["out_dir"]
         wait_for(lambda: len(metrics(server, run_id)) > done_before + 1, what="rows after the resume")
-        its = [row["iteration"] for row in metrics(server, run_id)]
+        rows = metrics(server, run_id)
+        assert rows[done_before] == {"event": "resume", "iteration": done_before, "samples": done_before * 128}
+        its = [row["iteration"] for row in rows if "event" not in row]
         assert its[:done_before] == list(range(1, done_before + 1)) and its[done_before] == done_before + 1
         server.post(f"/api/runs/{run_id}/stop")
         wait_status(server, run_id, "stopped")
@@ -164,3 +175,80 @@ def _alive(pid: int) -> bool:
         return False
     stat = Path(f"/proc/{pid}/stat")
     return stat.exists() and stat.read_text().split(") ", 1)[1][0] != "Z"
+
+
+def launch_and_cancel(studio: StudioProcess, **body: object) -> httpx.Response:
+    """POST /api/runs; a run it queues is stopped before it starts (the path is what is tested)."""
+    r = studio.post("/api/runs", body)
+    if r.status_code == 201:
+        studio.post(f"/api/runs/{r.json()['id']}/stop")
+    return r
+
+
+def test_api_takes_the_cli_path_forms(studio: StudioProcess) -> None:
+    demo = PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"
+    for form in ("args/deepmimic_humanoid_demo_ppo_args.txt", str(demo), "deepmimic_humanoid_demo_ppo_args.txt"):
+        r = launch_and_cancel(studio, arg_file=form)
+        assert r.status_code == 201, (form, r.text)
+        assert r.json()["config"]["arg_file"] == str(demo)
+    saved = launch_and_cancel(studio, arg_file="args/short.txt")  # the runs folder's args/ too
+    assert saved.status_code == 201
+    assert saved.json()["config"]["arg_file"] == str(studio.runs_dir / "args" / "short.txt")
+    clip = launch_and_cancel(studio, arg_file="args/short.txt", motion_file="data/motions/humanoid_demo_squat.pkl")
+    assert clip.status_code == 201 and clip.json()["config"]["motion_file"] == str(DEMO_CLIP)
+
+    missing = studio.post("/api/runs", {"arg_file": "args/no_such_args.txt"})
+    assert missing.status_code == 404 and missing.json()["detail"] == "arg file not found: args/no_such_args.txt"
+    for outside in ("/etc/passwd", "args/../../etc/passwd", "../pyproject.toml"):
+        assert studio.post("/api/runs", {"arg_file": outside}).status_code == 403, outside
+    xml = "data/assets/humanoid/humanoid.xml"
+    not_a_clip = studio.post("/api/runs", {"arg_file": "args/short.txt", "motion_file": xml})
+    assert not_a_clip.status_code == 400 and "humanoid.xml" in not_a_clip.json()["detail"]
+
+
+def test_unknown_launch_keys_are_refused_by_name(studio: StudioProcess) -> None:
+    r = studio.post("/api/runs", {"arg_file": "args/short.txt", "num_env": 8})
+    assert r.status_code == 422 and "unknown key 'num_env'; did you mean 'num_envs'?" in r.text
+    r = studio.post(f"/api/runs/{launch(studio, 'short')['id']}/resume", {"budget": 10})
+    assert r.status_code == 422 and "unknown key 'budget'" in r.text
+    assert studio.post("/api/runs", {"arg_file": "args/short.txt", "rand_seed": -1}).status_code == 422
+
+
+def test_again_with_the_seed_of_a_run(studio: StudioProcess) -> None:
+    seeded = wait_status(studio, launch(studio, "short", rand_seed=123, num_envs=2)["id"], "finished")
+    assert seeded["summary"]["seed"] == 123
+    unseeded = wait_status(studio, launch(studio, "short")["id"], "finished")
+    picked = unseeded["summary"]["seed"]  # the trainer picked one and recorded it
+    assert isinstance(picked, int)
+    for run, seed in ((seeded, 123), (unseeded, picked)):
+        r = studio.post(f"/api/runs/{run['id']}/again", {})
+        assert r.status_code == 201, r.text
+        again = wait_status(studio, r.json()["id"], "finished")
+        assert again["config"] == {**run["config"], "rand_seed": seed} and again["id"] != run["id"]
+        argv = again["command"]
+        assert argv[argv.index("--rand_seed") + 1] == str(seed) and again["summary"]["seed"] == seed
+        assert again["summary"]["num_envs"] == run["summary"]["num_envs"]
+    never_started = launch(studio, "long")
+    studio.post(f"/api/runs/{never_started['id']}/stop")
+    r = studio.post(f"/api/runs/{never_started['id']}/again", {})
+    assert r.status_code == 409 and "recorded no seed" in r.json()["detail"]
+    assert studio.post("/api/runs/999999/again", {}).status_code == 404
+
+
+def test_continue_a_finished_run_with_a_larger_budget(studio: StudioProcess) -> None:
+    per_row = 4 * 32  # the fake trainer's default 4 envs
+    run = wait_status(studio, launch(studio, "long", max_samples=3 * per_row)["id"], "finished")
+    assert run["summary"]["samples"] == 3 * per_row and run["summary"]["max_samples"] == 3 * per_row
+    r = studio.post(f"/api/runs/{run['id']}/resume", {})
+    assert r.status_code == 409 and "reached its budget (384 samples)" in r.json()["detail"]
+    r = studio.post(f"/api/runs/{run['id']}/resume", {"max_samples": 3 * per_row})
+    assert r.status_code == 409 and "not more than the 384 samples" in r.json()["detail"]
+    r = studio.post(f"/api/runs/{run['id']}/resume", {"max_samples": 5 * per_row})
+    assert r.status_code == 200, r.text
+    done = wait_status(studio, run["id"], "finished")
+    argv = done["command"]
+    assert argv[argv.index("--max_samples") + 1] == str(5 * per_row) and "--model_file" in argv
+    rows = metrics(studio, run["id"])
+    assert [r.get("event") for r in rows] == [None] * 3 + ["resume"] + [None] * 2
+    assert rows[3]["samples"] == 3 * per_row and rows[-1]["samples"] == 5 * per_row
+    assert done["summary"]["resumes"] == 1 and done["summary"]["max_samples"] == 5 * per_row
