@@ -21,6 +21,7 @@ import yaml
 
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.util.arg_parser import ArgParser
+from mimickit.util.config import load_yaml_text, read_text_file
 from mimickit.util.errors import MimicKitError
 from studio.parsing import read_motion
 from studio.security import display_path
@@ -218,9 +219,11 @@ def _motion_info(path: Path) -> dict[str, Any]:
 
 def _dataset_info(path: Path) -> dict[str, Any]:
     try:
-        data = load_yaml_text(path.read_text()) or {}
+        data = load_yaml_text(read_text_file(path, "dataset yaml"), path) or {}
         motions = [{"file": str(m.get("file")), "weight": float(m.get("weight", 1.0))} for m in data.get("motions", [])]
-    except (yaml.YAMLError, MimicKitError, AttributeError, TypeError, ValueError) as e:
+    except MimicKitError as e:
+        return {"name": path.stem, "error": one_line(str(e))}
+    except (yaml.YAMLError, AttributeError, TypeError, ValueError) as e:
         return {"name": path.stem, "error": one_line(f"{path.name}: not a dataset yaml ({e})")}
     return {"name": path.stem, "motions": motions}
 
@@ -251,11 +254,3 @@ def entry_error(path: Path, e: BaseException) -> str:
         return one_line(str(e))
     return one_line(f"{path.name}: cannot read it ({type(e).__name__}: {one_line(str(e))})")
 
-
-def load_yaml_text(text: str) -> Any:
-    """A yaml document through the project's bomb-refusing loader when it is there."""
-    try:
-        from mimickit.util.config import load_yaml_text as safe  # the loader that refuses alias bombs
-    except ImportError:
-        return yaml.safe_load(text)
-    return safe(text)

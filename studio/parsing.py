@@ -12,8 +12,9 @@ is a plain blocking call in a sync endpoint, which FastAPI already runs in its t
 
 from __future__ import annotations
 
+import contextlib
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -21,6 +22,7 @@ import anyio.to_thread
 
 from mimickit.anim import motion as motion_module
 from mimickit.anim.motion import Motion
+from mimickit.util.errors import MimicKitError
 
 T = TypeVar("T")
 
@@ -28,17 +30,32 @@ T = TypeVar("T")
 def read_motion(path: Path, *, sanitize_nan: bool = True) -> Motion:
     """The clip at `path` (MimicKitError, one line, when it is not a readable clip or over a budget)."""
     guarded = getattr(motion_module, "load_motion_guarded", None)
-    if guarded is not None:
-        return guarded(path, sanitize_nan=sanitize_nan)
-    return motion_module.load_motion(path, sanitize_nan=sanitize_nan)
+    with _one_line(str(path)):
+        if guarded is not None:
+            return guarded(path, sanitize_nan=sanitize_nan)
+        return motion_module.load_motion(path, sanitize_nan=sanitize_nan)
 
 
 def read_motion_bytes(data: bytes, *, source: str, sanitize_nan: bool = True) -> Motion:
     """The clip `data` holds (an upload), read as `read_motion` reads a file."""
     guarded = getattr(motion_module, "motion_from_bytes_guarded", None)
-    if guarded is not None:
-        return guarded(data, source=source, sanitize_nan=sanitize_nan)
-    return motion_module.motion_from_bytes(data, source=source, sanitize_nan=sanitize_nan)
+    with _one_line(source):
+        if guarded is not None:
+            return guarded(data, source=source, sanitize_nan=sanitize_nan)
+        return motion_module.motion_from_bytes(data, source=source, sanitize_nan=sanitize_nan)
+
+
+@contextlib.contextmanager
+def _one_line(source: str) -> Iterator[None]:
+    """Whatever a crafted file makes the loader raise (an overflow, a memory error) is the file's
+    fault: one MimicKitError line naming it, not an internal error."""
+    try:
+        yield
+    except MimicKitError:
+        raise
+    except Exception as e:  # noqa: BLE001 - untrusted input: every failure is the same user error
+        first = (str(e).strip().splitlines() or [""])[0][:200]
+        raise MimicKitError(f"{source}: not a MimicKit clip ({type(e).__name__}: {first})") from None
 
 
 async def run_blocking(fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:

@@ -59,6 +59,9 @@ async def upload_motion(
     validated before anything is written; it lands in `<runs-dir>/uploads/`."""
     studio = studio_of(request)
     limit = studio.settings.upload_limit_bytes
+    declared = request.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > limit:  # refused before a byte is read
+        raise HTTPException(413, f"a clip may be at most {limit} bytes, this one is {declared}")
     body = bytearray()
     async for chunk in request.stream():
         body += chunk
