@@ -10,15 +10,11 @@ import pytest
 
 from mimickit.envs.env_config import load_env_configs
 from mimickit.learning.agent_config import load_agent_config
+from mimickit.run_args import RUN_ARGS, check_run_args
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.paths import PROJECT_ROOT, resolve_data_path
 
 ARG_FILES = sorted((PROJECT_ROOT / "args").glob("*_args.txt"))
-KNOWN_ARGS = {
-    "arg_file", "mode", "num_envs", "engine_config", "env_config", "agent_config", "out_dir", "model_file",
-    "max_samples", "test_episodes", "logger", "rand_seed", "devices", "video", "visualize", "data_dir",
-    "save_int_models", "master_port",
-}  # fmt: skip
 
 
 def test_every_arg_file_is_checked() -> None:
@@ -26,12 +22,15 @@ def test_every_arg_file_is_checked() -> None:
 
 
 @pytest.mark.parametrize("arg_file", ARG_FILES, ids=lambda p: p.name)
-def test_arg_file_names_known_args_and_valid_configs(arg_file: Path) -> None:
+def test_arg_file_names_known_args_and_valid_configs(arg_file: Path, tmp_path: Path, monkeypatch) -> None:
     args = ArgParser()
     args.load_file(str(arg_file))
-    unknown = set(args.all_keys()) - KNOWN_ARGS
+    unknown = set(args.all_keys()) - set(RUN_ARGS)
     assert not unknown, f"{arg_file.name}: unknown arguments {sorted(unknown)}"
+    monkeypatch.chdir(tmp_path)  # the out_dir probe runs in a scratch folder
+    check_run_args(args)
     assert args.parse_int("num_envs", 1) >= 1
+    monkeypatch.chdir(PROJECT_ROOT)
 
     paths = {}
     for key in ("env_config", "engine_config", "agent_config"):
