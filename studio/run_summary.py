@@ -1,7 +1,8 @@
-"""What a run's folder says about it, for the run list: the clip or dataset and character it trains
-(its env_config.yaml as trained), env count, budget and seed (args.json), samples, elapsed training
-time, samples/s and the last test return (metrics.jsonl), and its end state with the line that says
-why (state.json). The folder is the truth; the registry only knows what was asked.
+"""What a run's folder says about it, for the run list: the clip or dataset and character it trains,
+env count, budget and seed (args.json's effective values; the env_config.yaml as trained when a
+trainer recorded no clip), samples, elapsed training time, samples/s and the last test return
+(metrics.jsonl), and its end state with the line that says why (state.json). The folder is the truth;
+the registry only knows what was asked.
 
 A run list is polled every few seconds for every run: a summary is cached until one of its files
 changes (mtime and size), and metrics.jsonl is read from its tail only.
@@ -16,7 +17,7 @@ from typing import Any
 
 import yaml
 
-from mimickit.run_folder import RunFolder
+from mimickit.run_folder import RunFolder, is_event_row
 from studio.metrics import last_rows
 
 NO_BUDGET = 2**62  # a max_samples at least this large is the trainer's "no limit"
@@ -33,14 +34,14 @@ def run_summary(out_dir: str | Path) -> dict[str, Any]:
         hit = _cache.get(str(folder.path))
     if hit and hit[0] == key:
         return hit[1]
-    summary = {**_from_args(folder), **_from_env_config(folder), **_from_metrics(folder), **_from_state(folder)}
+    summary = {**_from_env_config(folder), **_from_args(folder), **_from_metrics(folder), **_from_state(folder)}
     with _lock:
         _cache[str(folder.path)] = (key, summary)
     return summary
 
 
 def seed_of(out_dir: str | Path) -> int | None:
-    """The seed the run's trainer used, as its args.json records it."""
+    """The seed the run's trainer started with, as its args.json records it (a resumed run's first start)."""
     return _from_args(RunFolder(out_dir))["seed"]
 
 
@@ -56,11 +57,22 @@ def _from_args(folder: RunFolder) -> dict[str, Any]:
     record = folder.read_args() or {}
     values = record.get("effective") if isinstance(record.get("effective"), dict) else {}
     budget = _int(values.get("max_samples"))
-    return {
-        "seed": _int(record.get("seed")),
+    starts = record.get("previous_starts")
+    starts = [r for r in starts if isinstance(r, dict)] if isinstance(starts, list) else []
+    seeds = [_int(r.get("seed")) for r in [*starts, record]]  # a resume draws its own seed unless given one
+    out = {
+        "seed": seeds[0],  # the first start's: what "again with this seed" repeats
+        "seeds": seeds,
+        "resumes": len(starts),  # each resume keeps the start before it
         "num_envs": _int(values.get("num_envs")),
         "max_samples": budget if budget is not None and budget < NO_BUDGET else None,
     }
+    for key in ("motion_file", "char_file"):  # as the trainer resolved them
+        if values.get(key):
+            out[key] = str(values[key])
+    if values.get("motion_file"):
+        out["dataset"] = str(values["motion_file"]).endswith((".yaml", ".yml"))
+    return out
 
 
 def _from_env_config(folder: RunFolder) -> dict[str, Any]:
@@ -80,7 +92,7 @@ def _from_env_config(folder: RunFolder) -> dict[str, Any]:
 
 def _from_metrics(folder: RunFolder) -> dict[str, Any]:
     rows = last_rows(folder.metrics_file)
-    iterations = [r for r in rows if "event" not in r]
+    iterations = [r for r in rows if not is_event_row(r)]
     last = iterations[-1] if iterations else {}
     tested = [r for r in iterations if _finite(r.get("test_return"))]
     hours = last.get("wall_time")
@@ -90,7 +102,6 @@ def _from_metrics(folder: RunFolder) -> dict[str, Any]:
         "elapsed_s": hours * 3600.0 if _finite(hours) else None,  # the trainer's wall_time is in hours
         "samples_per_s": last.get("time.samples_per_s") if _finite(last.get("time.samples_per_s")) else None,
         "test_return": tested[-1]["test_return"] if tested else None,
-        "resumes": sum(1 for r in rows if r.get("event") == "resume"),
     }
 
 

@@ -5,8 +5,10 @@ is also run with the real trainer in test_launch_fields.py / test_real_run.py.
     fake_trainer.py --arg_file F --out_dir D [--num_envs N] [--max_samples M] [--motion_file C]
                     [--rand_seed S] [--data_dir X] [--model_file D/model.pt]
 
-It reads its arguments with MimicKit's own parser and refuses what the real trainer refuses: a key
-the trainer does not know (exit 2, `error: ...`), a malformed number. Like the real trainer it writes,
+It reads its arguments with MimicKit's own parser and runs the real trainer's checks on them
+(`mimickit.run_args.check_run_args`), so it refuses what the real trainer refuses (an unknown key,
+a bad value: exit 2, one `error: ...` line) and accepts only its own three keys beyond. Like the real
+trainer it writes,
 through `mimickit.run_folder`, `args.json` (argv, effective values, seed), `state.json` (running, then
 finished / stopped / failed), `metrics.jsonl` (one row per iteration, flushed per line; a
 `{"event": "resume"}` row when resumed), `log.txt` and `model.pt` (atomically, after every iteration);
@@ -24,32 +26,27 @@ import sys
 import time
 from pathlib import Path
 
-from mimickit.run_folder import EndState, RunFolder
+from mimickit.run_args import check_run_args
+from mimickit.run_folder import EndState, ExitCode, RunFolder, resume_row
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import atomic_write_bytes
 
 FAKE_KEYS = {"fake_rows", "fake_period", "fake_exit_code"}
 SAMPLES_PER_ENV = 32
+NO_LIMIT = 2**62
 
 
 def parse(argv: list[str]) -> ArgParser:
+    """All arguments; those that are not the stand-in's own go through the real trainer's checks."""
     args = ArgParser()
     args.load_args(argv)
-    known = trainer_keys() | FAKE_KEYS
+    real = ArgParser()
     for key in args.all_keys():
-        if key not in known:
-            raise MimicKitError(f"unknown argument --{key}")
+        if key not in FAKE_KEYS:
+            real.set(key, *args.parse_strings(key))
+    check_run_args(real)
     return args
-
-
-def trainer_keys() -> set[str]:
-    """The keys `mimickit train` accepts (its own table, so the stand-in cannot accept more)."""
-    try:
-        from mimickit.run import TRAIN_KEYS
-    except ImportError:  # TEMPORARY until the trainer's key table lands
-        TRAIN_KEYS = "arg_file mode num_envs engine_config env_config agent_config out_dir model_file max_samples test_episodes logger rand_seed devices save_int_models visualize video data_dir json master_port motion_file".split()
-    return set(TRAIN_KEYS)
 
 
 def main() -> int:
@@ -57,18 +54,24 @@ def main() -> int:
         args = parse(sys.argv[1:])
         rows, period = args.parse_int("fake_rows", 10), args.parse_float("fake_period", 0.2)
         num_envs = args.parse_int("num_envs", 4)
-        max_samples = args.parse_int("max_samples", 2**62)
+        max_samples = args.parse_int("max_samples", NO_LIMIT)
         seed = args.parse_int("rand_seed", -1)
     except MimicKitError as e:
         print(f"error: {e}", file=sys.stderr)
-        return 2
+        return ExitCode.REFUSED
     seed = seed if seed >= 0 else random.randrange(2**31)
     folder = RunFolder(args.parse_string("out_dir"))
     folder.path.mkdir(parents=True, exist_ok=True)
     model_file = args.parse_string("model_file")
     state = json.loads(Path(model_file).read_text()) if model_file else {"iteration": 0, "samples": 0}
-    effective = {"num_envs": num_envs, "max_samples": max_samples, "rand_seed": seed}
-    folder.write_args({"argv": sys.argv[1:], "effective": effective, "seed": seed})
+    effective = {
+        "num_envs": num_envs,
+        "max_samples": max_samples if max_samples < NO_LIMIT else None,
+        "motion_file": args.parse_string("motion_file") or None,
+    }
+    previous = (folder.read_args() or {}) if model_file else None  # kept as the real trainer keeps it
+    starts = [*previous.pop("previous_starts", []), previous] if previous is not None else []
+    folder.write_args({"argv": sys.argv[1:], "effective": effective, "seed": seed, "previous_starts": starts})
     folder.write_state(EndState.RUNNING, iteration=state["iteration"], samples=state["samples"])
 
     def end(end_state: EndState, reason: str = "") -> None:
@@ -87,9 +90,9 @@ def main() -> int:
     if code:
         end(EndState.FAILED, f"fake failure with exit code {code}")
         print(f"error: fake failure with exit code {code}", file=sys.stderr, flush=True)
-    else:
-        end(EndState.FINISHED)
-    return code
+        return code
+    end(EndState.FINISHED)
+    return ExitCode.OK
 
 
 def train(
@@ -98,7 +101,7 @@ def train(
     start = time.time()
     with folder.metrics_file.open("a") as metrics, folder.log_file.open("a") as log:
         if resumed:
-            marker = {"event": "resume", "iteration": state["iteration"], "samples": state["samples"]}
+            marker = resume_row(state["iteration"], state["samples"], 0.0, max_samples)
             metrics.write(json.dumps(marker) + "\n")
         while state["iteration"] < rows and state["samples"] < max_samples:
             time.sleep(period)

@@ -1,5 +1,5 @@
 """A run launched through the API with the real `mimickit train` (not the stand-in): a tiny DeepMimic
-PPO run on the project's demo clip goes running → succeeded with metrics rows and a checkpoint. Its
+PPO run on the project's demo clip goes running → finished with metrics rows and a checkpoint. Its
 rollout is loaded while it trains (as soon as the first checkpoint is written), steps and reports each
 reward term, and picks up the run's final checkpoint when the trainer writes it."""
 
@@ -60,7 +60,7 @@ def test_real_training_run_and_its_rollout(tmp_path: Path) -> None:
             RUN_TIMEOUT_S,
             "the run to finish",
         )
-        assert done["status"] == "succeeded", (out_dir / "console.log").read_text()[-2000:]
+        assert done["status"] == "finished", (out_dir / "console.log").read_text()[-2000:]
         assert done["exit_code"] == 0 and done["checkpoint"] == str(out_dir / "model.pt")
         rows = server.get(f"/api/runs/{run_id}/metrics", params={"follow": "false"}).json()
         assert len(rows) >= 5 and rows[-1]["samples"] >= 1500
