@@ -68,7 +68,7 @@ def test_checkpoints_that_do_not_fit_are_refused(studio: StudioProcess, misfit_c
     # A run of the fake trainer: its model.pt is not a torch checkpoint.
     write_arg_file(studio.runs_dir, "two", rows=2, period=0.05)
     run = studio.post("/api/runs", {"arg_file": str(studio.runs_dir / "args" / "two.txt")}).json()
-    wait_for(lambda: studio.get(f"/api/runs/{run['id']}").json()["status"] == "succeeded", what="the fake run")
+    wait_for(lambda: studio.get(f"/api/runs/{run['id']}").json()["status"] == "finished", what="the fake run")
     r = studio.post("/api/scene/load_rollout", {"run_id": run["id"]})
     assert r.status_code == 400 and "no env_config and agent_config beside it" in r.json()["detail"]
     configs = {
