@@ -67,8 +67,10 @@ def check_frame_dim(m: Motion, char: KinCharModel, path: str | Path) -> None:
 def validate_motion(path: str | Path, char: KinCharModel | None = None) -> tuple[list[str], list[str]]:
     """(problems, warnings) of one clip; no problems means it is valid.
 
-    Non-finite values are a warning, not a problem: the loader reads them as 0 (the official
-    `humanoid_walk.pkl` has NaN neck columns).
+    A clip that does not load is one problem (the loader's line: bad pickle, over a limit, fps
+    outside 0.001..10000, complex or None values, ...). Of a loaded clip, non-finite values are
+    problems too: the trainer reads them as 0, which is not the motion (the official
+    `humanoid_walk.pkl` has NaN neck columns, so it is reported).
     """
     try:
         with warnings.catch_warnings():
@@ -76,10 +78,7 @@ def validate_motion(path: str | Path, char: KinCharModel | None = None) -> tuple
             m = load_motion(path, sanitize_nan=False)
     except MimicKitError as e:
         return [str(e)], []
-    problems: list[str] = []
-    notes: list[str] = []
-    if m.nan_columns:
-        notes.append(f"{path}: non-finite values in columns {list(m.nan_columns)} (read as 0)")
+    problems = non_finite_problems(m, path)
     if m.num_frames < 2:
         problems.append(f"{path}: only {m.num_frames} frame(s); a clip needs at least 2")
     if char is not None:
@@ -87,7 +86,24 @@ def validate_motion(path: str | Path, char: KinCharModel | None = None) -> tuple
             check_frame_dim(m, char, path)
         except MimicKitError as e:
             problems.append(str(e))
-    return problems, notes
+    return problems, []
+
+
+def non_finite_problems(m: Motion, path: str | Path) -> list[str]:
+    """One line for the columns with no finite value at all, one for those with some NaN/inf."""
+    finite = np.isfinite(m.frames)
+    if finite.all():
+        return []
+    none_finite = [int(c) for c in np.where(~finite.any(axis=0))[0]]
+    some = [int(c) for c in np.where(~finite.all(axis=0) & finite.any(axis=0))[0]]
+    out = []
+    if none_finite:
+        kind = "NaN" if np.isnan(m.frames[:, none_finite]).all() else "NaN or infinite"
+        out.append(f"{path}: columns {none_finite} are {kind} in every frame (read as 0 when training)")
+    if some:
+        bad = int((~finite[:, some]).sum())
+        out.append(f"{path}: {bad} non-finite values (NaN or infinite) in columns {some} (read as 0 when training)")
+    return out
 
 
 def format_info(info: dict[str, Any]) -> str:
