@@ -16,10 +16,9 @@ from mimickit.util.errors import MimicKitError
 
 
 def _motion_info(args: argparse.Namespace) -> int:
-    from mimickit.anim.mjcf_char_model import load_char_model
     from mimickit.tools.motion_report import format_info, motion_info
 
-    char = load_char_model(args.char) if args.char else None
+    char = _char_model(args.char)
     infos = [motion_info(p, char) for p in args.paths]
     if args.json:
         print(json.dumps(infos, indent=1))
@@ -28,11 +27,19 @@ def _motion_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _motion_validate(args: argparse.Namespace) -> int:
+def _char_model(path: str | None):  # -> KinCharModel | None
+    """The character named by --char; imported only then, so a clip check alone starts without torch."""
+    if not path:
+        return None
     from mimickit.anim.mjcf_char_model import load_char_model
+
+    return load_char_model(path)
+
+
+def _motion_validate(args: argparse.Namespace) -> int:
     from mimickit.tools.motion_report import validate_motion
 
-    char = load_char_model(args.char) if args.char else None
+    char = _char_model(args.char)
     bad = 0
     for p in args.paths:
         problems, notes = validate_motion(p, char)
