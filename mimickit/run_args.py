@@ -73,6 +73,7 @@ def check_run_args(args: ArgParser) -> None:
     _check_devices(args)
     _check_existing(args, "data_dir", is_dir=True)
     _check_existing(args, "model_file", is_dir=False)
+    _check_model_file(args)
     if mode == "train":
         check_writable_dir(Path(args.parse_string("out_dir", "output/")), f"--out_dir{_where(args, 'out_dir')}")
 
@@ -164,6 +165,16 @@ def _check_existing(args: ArgParser, key: str, is_dir: bool) -> None:
     if not ok:
         kind = "folder" if is_dir else "file"
         raise MimicKitError(f"--{key}{_where(args, key)}: {kind} not found: {_short(val)}")
+
+
+def _check_model_file(args: ArgParser) -> None:
+    """A checkpoint that is unreadable, holds code or non-tensors, or has NaN weights is refused here,
+    before an env is built; whether it fits the agent is checked when the agent loads it."""
+    from mimickit.learning import checkpoint
+
+    model_file = args.parse_string("model_file", "")
+    if model_file:
+        checkpoint.check_finite(model_file, checkpoint.read_checkpoint(model_file))
 
 
 def _short(text: str, limit: int = 80) -> str:

@@ -229,10 +229,10 @@ class BaseAgent(nn.Module, abc.ABC):
         state, train_state = checkpoint.split_train_state(checkpoint.read_checkpoint(path, self._device))
         checkpoint.check_fits(path, self.state_dict(), state)
         checkpoint.check_finite(path, state)
+        if train_state is not None:  # first: an optimiser state that does not fit fails before the model changes
+            self._restore_train_state(train_state, path)
         self.load_state_dict(state, strict=True)
         self._sync_optimizers()
-        if train_state is not None:
-            self._restore_train_state(train_state, path)
 
     def get_num_params(self) -> int:
         """Trainable parameters."""

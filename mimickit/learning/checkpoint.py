@@ -253,12 +253,16 @@ def _check_size(path: Path) -> None:
         )
 
 
+_ADVICE = ("Weights only load failed", "(1)", "(2)", "Please file an issue", "Check the doc")
+
+
 def _weights_only_detail(e: Exception) -> str:
-    """torch's weights_only message is a paragraph of advice around one line that says what failed."""
+    """torch's weights_only message is a paragraph of advice around the one line that says what failed
+    (after "WeightsUnpickler error:", on that line or the next)."""
     for line in str(e).splitlines():
         line = line.split("WeightsUnpickler error:")[-1].strip()
-        if line and not line.startswith(("Weights only load failed", "Please file an issue", "Check the doc")):
-            return _short(line)
+        if line and not line.startswith(_ADVICE):
+            return _short(line.split(" Please use")[0])
     return _describe(e)
 
 
@@ -299,7 +303,42 @@ def _check_optimizers(opts: Any, where: str) -> dict[str, Any]:
                 f"{where}.optimizers.{_short(str(name))} must be a mapping with an 'optimizer' state dict"
             )
         _int_field(st, "steps", 0, f"{where}.optimizers.{name}")
+        _check_torch_optimizer_state(st["optimizer"], f"{where}.optimizers.{name}.optimizer")
     return opts
+
+
+def _check_torch_optimizer_state(opt: dict[str, Any], where: str) -> None:
+    """torch's Optimizer.state_dict layout: `state` {param index: {name: tensor | number}} and
+    `param_groups` [{..., "params": [index, ...]}]; torch itself would accept other shapes and fail
+    (with a traceback) at the first step."""
+    state, groups = opt.get("state"), opt.get("param_groups")
+    if not isinstance(state, dict) or not isinstance(groups, list):
+        raise MimicKitError(f"{where} must hold a 'state' mapping and a 'param_groups' list")
+    for idx, entry in state.items():
+        if not isinstance(entry, dict) or not all(
+            isinstance(v, (torch.Tensor, int, float)) and not isinstance(v, bool) for v in entry.values()
+        ):
+            raise MimicKitError(f"{where}.state.{_short(str(idx))} must map names to tensors or numbers")
+    for i, group in enumerate(groups):
+        params = group.get("params") if isinstance(group, dict) else None
+        if not isinstance(params, list) or not all(isinstance(x, int) and not isinstance(x, bool) for x in params):
+            raise MimicKitError(f"{where}.param_groups.{i} must be a mapping with a 'params' list of indices")
+        for key, val in group.items():
+            if key != "params" and not _is_hyperparameter(val):
+                raise MimicKitError(f"{where}.param_groups.{i}.{_short(str(key))}: not a number ({type(val).__name__})")
+
+
+def _is_hyperparameter(val: Any) -> bool:
+    """A number (finite), a flag, None, or a short tuple/list of numbers (Adam's betas)."""
+    if val is None or isinstance(val, bool):
+        return True
+    if isinstance(val, (int, float)):
+        return math.isfinite(val)
+    if isinstance(val, (list, tuple)) and len(val) <= 8:
+        return all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in val)
+    if isinstance(val, torch.Tensor):
+        return val.numel() == 1 and bool(torch.isfinite(val).all())
+    return False
 
 
 def _what_differs(key: str) -> str:
