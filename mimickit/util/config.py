@@ -33,6 +33,7 @@ MAX_YAML_NODES = 200_000
 anchor's whole subtree)."""
 MAX_ECHO_CHARS = 200
 """Most characters of user input an error message repeats."""
+_MAX_ERRORS = 5  # problems listed in one validation message
 
 _SafeLoader: type[yaml.SafeLoader] = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # type: ignore[assignment]
 
@@ -125,7 +126,8 @@ def format_validation_error(e: ValidationError, model: type[BaseModel] | None = 
     """One line for all of `e`'s errors; echoed input is cut to `MAX_ECHO_CHARS`, and an unknown key
     names the nearest field of `model` when given."""
     parts = []
-    for err in e.errors():
+    errors = e.errors()
+    for err in errors[:_MAX_ERRORS]:
         loc = tuple(err["loc"])
         key = _echo_line(".".join(str(x) for x in loc) or "(top level)")
         if err["type"] == "extra_forbidden":
@@ -135,6 +137,8 @@ def format_validation_error(e: ValidationError, model: type[BaseModel] | None = 
             parts.append(f"missing required key '{key}'")
         else:
             parts.append(f"key '{key}': {_echo_line(err['msg'])} (got {_echo(err.get('input'))})")
+    if len(errors) > _MAX_ERRORS:
+        parts.append(f"and {len(errors) - _MAX_ERRORS} more problems")
     return "; ".join(parts)
 
 
