@@ -100,6 +100,9 @@ def run(
     if mode not in ("train", "test"):
         raise MimicKitError(f"--mode must be train or test, got {mode!r}")
     inputs = resolve_inputs(args)
+    max_samples = args.parse_int("max_samples", NO_LIMIT)
+    if mode == "train":
+        check_resume_budget(args.parse_string("model_file", ""), max_samples)
     if base_seed is None:
         base_seed = draw_seed(args)[0]
     mp_util.init(rank, world, device, port)
@@ -119,6 +122,21 @@ def run(
         result["tracking"] = test_tracking(summary)
         return result
     return _train(args, argv, inputs, env_info, agent, base_seed, world)
+
+
+def check_resume_budget(model_file: str, max_samples: int) -> None:
+    """Refuse to resume a checkpoint that already reached `max_samples` (it would train nothing)."""
+    if not model_file:
+        return
+    from mimickit.learning import checkpoint
+
+    _, train_state = checkpoint.split_train_state(checkpoint.read_checkpoint(model_file))
+    samples = train_state["samples"] if train_state else 0
+    if samples >= max_samples:
+        raise MimicKitError(
+            f"{model_file} already has {samples} samples, which reaches --max_samples {max_samples}:"
+            " nothing to train (give a larger --max_samples to continue it)"
+        )
 
 
 def resolve_inputs(args: ArgParser) -> RunInputs:
@@ -184,11 +202,6 @@ def _train(
     max_samples = args.parse_int("max_samples", NO_LIMIT)
     model_file = args.parse_string("model_file", "")
     resumed = bool(model_file) and agent.get_iteration() > 0
-    if resumed and agent.get_sample_count() >= max_samples:
-        raise MimicKitError(
-            f"{model_file} already has {agent.get_sample_count()} samples, which reaches --max_samples {max_samples}:"
-            " nothing to train (give a larger --max_samples to continue it)"
-        )
     folder = RunFolder(Path(args.parse_string("out_dir", "output/")).resolve())
     root = mp_util.is_root_proc()
     if root:

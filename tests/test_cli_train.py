@@ -13,6 +13,7 @@ from pathlib import Path
 
 import torch
 
+from mimickit.run_folder import RunFolder
 from mimickit.util.paths import PROJECT_ROOT
 
 ARG_FILE = PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"
@@ -88,6 +89,9 @@ def test_sigterm_mid_run_saves_a_loadable_checkpoint_and_exits_zero(tmp_path: Pa
         proc.kill()
     state = torch.load(out / "model.pt", weights_only=True)
     assert state["_train_state"]["samples"] >= 128
+    end = RunFolder(out).read_state()
+    assert end is not None and end.state.value == "stopped" and end.samples == state["_train_state"]["samples"]
+    assert end.reason == f"stopped by SIGTERM at iteration {end.iteration}, {end.samples} samples; model.pt saved"
     r = mimickit(
         "test", "--arg_file", str(ARG_FILE), "--num_envs", "2", "--model_file", str(out / "model.pt"),
         "--test_episodes", "2", "--json",

@@ -171,3 +171,47 @@ def test_no_agent_file_gives_the_dummy_agent_with_zero_actions():
     assert stats.num_eps == 4 and stats.mean_ep_len == 20.0
     assert stats.to_dict() == {"mean_return": stats.mean_return, "mean_episode_length": 20.0, "episodes": 4}
     assert agent.test_model(0).num_eps == 0
+
+
+@pytest.mark.parametrize(
+    ("corrupt", "reason"),
+    [("obs", "observation is nan"), ("reward", "reward is inf"), ("none", None)],
+    ids=["nan-observation", "inf-reward", "finite"],
+)
+def test_divergence_guard_names_the_first_non_finite_quantity(tmp_path, corrupt, reason):
+    """One env's observation (or reward) of the third iteration turns non-finite: training stops in that
+    iteration, names it, keeps its metrics row and leaves model.pt with the finite weights it started from."""
+    agent = make_ppo(iters_per_output=100)
+    env = agent._env
+    real_step = env.step
+    train_steps = 0
+
+    def step(action):
+        nonlocal train_steps
+        obs, rew, done, info = real_step(action)
+        if env.get_mode() == EnvMode.TRAIN:
+            train_steps += 1
+            if train_steps == 2 * 20 + 7 and corrupt == "obs":
+                obs = obs.clone()
+                obs[3, 1] = float("nan")
+            if train_steps == 2 * 20 + 7 and corrupt == "reward":
+                rew = rew.clone()
+                rew[5] = float("inf")
+        return obs, rew, done, info
+
+    env.step = step
+    summary = agent.train_model(4 * SAMPLES_PER_ITER, tmp_path)
+    rows = read_metrics(tmp_path / "metrics.jsonl")
+    state = torch.load(tmp_path / "model.pt", weights_only=True)
+    weights = [v for k, v in state.items() if k != TRAIN_STATE_KEY and v.is_floating_point()]
+    assert all(bool(torch.isfinite(w).all()) for w in weights)
+    if reason is None:
+        assert not summary.diverged and summary.iterations == 4 and len(rows) == 4
+        return
+    assert summary.diverged == f"diverged at iteration 2: {reason}" and not summary.stopped
+    assert (summary.iterations, summary.samples) == (2, 2 * SAMPLES_PER_ITER)
+    assert [r["iteration"] for r in rows] == [0, 1, 2]
+    assert state[TRAIN_STATE_KEY]["iteration"] == 2 and state[TRAIN_STATE_KEY]["samples"] == 2 * SAMPLES_PER_ITER
+    assert (tmp_path / "log.txt").read_text().splitlines()[-1] == f"# {summary.diverged}"
+    own = agent.state_dict()  # rolled back to the start of iteration 2: what model.pt holds
+    assert all(torch.equal(own[k], v) for k, v in state.items() if k != TRAIN_STATE_KEY)
