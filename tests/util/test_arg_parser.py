@@ -1,6 +1,6 @@
 import pytest
 
-from mimickit.util.arg_parser import ArgParser
+from mimickit.util.arg_parser import COMMAND_LINE, ArgParser
 from mimickit.util.errors import MimicKitError
 
 
@@ -40,3 +40,36 @@ def test_bad_int_names_key():
 def test_missing_arg_file():
     with pytest.raises(MimicKitError, match="nope.txt"):
         ArgParser().load_args(["--arg_file", "nope.txt"])
+
+
+def test_sources_name_the_command_line_or_the_file(tmp_path):
+    f = tmp_path / "args.txt"
+    f.write_text("--num_envs 8\n--devices cpu\n")
+    p = ArgParser()
+    p.load_args(["--arg_file", str(f), "--num_envs", "2"])
+    assert p.source("num_envs") == COMMAND_LINE and p.source("devices") == str(f)
+
+
+@pytest.mark.parametrize(
+    "value, expected",
+    [("1e6", 1_000_000), ("12", 12), ("-3", -3)],
+)
+def test_integers(value, expected):
+    p = ArgParser()
+    p.load_args(["--n", value])
+    assert p.parse_int("n") == expected
+
+
+@pytest.mark.parametrize("value", ["1.5e0", "1e400", "inf", "nan", "1.0"])
+def test_non_integers_are_one_error(value):
+    p = ArgParser()
+    p.load_args(["--n", value])
+    with pytest.raises(MimicKitError, match="--n: expected an integer"):
+        p.parse_int("n")
+
+
+def test_binary_arg_file_is_one_line(tmp_path):
+    f = tmp_path / "args.txt"
+    f.write_bytes(b"--num_envs 8\x00\x01")
+    with pytest.raises(MimicKitError, match="args.txt: a binary file"):
+        ArgParser().load_args(["--arg_file", str(f)])
