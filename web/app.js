@@ -275,10 +275,23 @@ async function refreshRuns() {
   let runs;
   try { runs = await api("GET", "/api/runs"); } catch (e) { return; }
   refreshCheckpoints();
+  // A run whose record did not change keeps its element (an ended run's never changes): no
+  // churn under the pointer; the list is re-laid only when an element was replaced.
   const list = $("run-list");
-  list.replaceChildren(...runs.slice().reverse().map(runItem));
+  const nodes = runs.slice().reverse().map((run) => {
+    const key = JSON.stringify(run);  // a running run's duration_s changes with every poll
+    const cached = runNodes.get(run.id);
+    if (cached && cached.key === key) return cached.node;
+    const node = runItem(run);
+    runNodes.set(run.id, { key, node });
+    return node;
+  });
+  const same = nodes.length === list.children.length && nodes.every((n, i) => list.children[i] === n);
+  if (!same) list.replaceChildren(...nodes);
+  for (const id of runNodes.keys()) if (!runs.some((r) => r.id === id)) runNodes.delete(id);
   if (selectedRun !== null) updateConsole();
 }
+const runNodes = new Map();  // run id -> {key, node}
 
 const ENDED = ["finished", "stopped", "diverged", "failed", "interrupted"];
 const num = (v) => (v === null || v === undefined ? "–" : Number(v).toLocaleString("en-US"));

@@ -1,0 +1,225 @@
+"""Every launch-form field reaches the real trainer (`mimickit train` started by the studio's run
+manager, not a stand-in), checked in the run folder: args.json's effective values and seed, the
+env_config.yaml as trained (its clip is the requested one), the metrics rows. Then, with the same real
+runs: "again with this seed" repeats the rows, "continue" with a larger budget trains on from the
+checkpoint with a resume marker, a learning rate of 1e4 ends "diverged" with its line (and the
+metrics reach a browser as JSON it can parse), and the page (real Chromium) shows each run's seed,
+progress and end state, draws the resume marker and marks the non-finite losses.
+
+Runs are 2 iterations of 4 envs (128 samples each) on the project's demo arg file and humanoid: no
+MimicKit data needed.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from mimickit.anim.motion import LoopMode, Motion, load_motion, save_motion
+from mimickit.run_folder import ExitCode, RunFolder, is_event_row
+from mimickit.util.paths import PROJECT_ROOT
+from tests.conftest import DEMO_CLIP
+from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for
+
+DEMO_ARGS = "args/deepmimic_humanoid_demo_ppo_args.txt"
+PER_ITER = 4 * 32
+RUN_TIMEOUT_S = 300.0
+TIMING = ("time", "wall_time")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory):
+    runs_dir = tmp_path_factory.mktemp("real_runs")
+    server = StudioProcess(runs_dir, trainer=REAL_TRAINER)
+    yield server
+    for run in server.get("/api/runs").json() if server.proc.poll() is None else []:
+        if run["status"] in ("running", "queued"):
+            server.post(f"/api/runs/{run['id']}/stop", {})
+    server.stop()
+
+
+def run_of(server: StudioProcess, run_id: int) -> dict:
+    return server.get(f"/api/runs/{run_id}").json()
+
+
+def ended(server: StudioProcess, run_id: int) -> dict:
+    run = wait_for(
+        lambda: (r := run_of(server, run_id))["status"] not in ("queued", "running", "stopping") and r,
+        RUN_TIMEOUT_S,
+        f"run {run_id} to end",
+    )
+    return run
+
+
+def console(run: dict) -> str:
+    return RunFolder(run["out_dir"]).console_file.read_text()[-3000:]
+
+
+def data_rows(server: StudioProcess, run_id: int) -> list[dict]:
+    rows = server.get(f"/api/runs/{run_id}/metrics", params={"follow": "false"}).json()
+    return [r for r in rows if not is_event_row(r)]
+
+
+def without_timing(row: dict) -> dict:
+    return {k: v for k, v in row.items() if k not in TIMING and not k.startswith("time.")}
+
+
+@pytest.fixture(scope="module")
+def clip(server: StudioProcess) -> Path:
+    """Another clip for the humanoid (the demo squat backwards), in the runs folder's uploads."""
+    demo = load_motion(DEMO_CLIP)
+    path = server.runs_dir / "uploads" / "squat_reversed.pkl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_motion(path, Motion(LoopMode.CLAMP, demo.fps, np.ascontiguousarray(demo.frames[::-1])))
+    return path
+
+
+@pytest.fixture(scope="module")
+def fields_run(server: StudioProcess, clip: Path) -> dict:
+    """A run launched with every field of the launch form, the arg file in the CLI's `args/` form."""
+    body = {"arg_file": DEMO_ARGS, "name": "every field", "num_envs": 4, "max_samples": 2 * PER_ITER}
+    r = server.post("/api/runs", {**body, "motion_file": str(clip), "rand_seed": 7})
+    assert r.status_code == 201, r.text
+    run = r.json()
+    running = wait_for(lambda: (x := run_of(server, run["id"]))["pid"] and x, 60, "the trainer to start")
+    # The trainer works in its run folder (MuJoCo's log and the like land there, not in the repo).
+    assert Path(f"/proc/{running['pid']}/cwd").resolve() == Path(run["out_dir"]).resolve()
+    done = ended(server, run["id"])
+    assert done["status"] == "finished", console(done)
+    return {**done, "rows": data_rows(server, run["id"])}
+
+
+def test_every_launch_field_reaches_the_trainer(fields_run: dict, clip: Path) -> None:
+    folder = RunFolder(fields_run["out_dir"])
+    record = folder.read_args()
+    eff = record["effective"]
+    assert (eff["num_envs"], eff["max_samples"], eff["motion_file"]) == (4, 2 * PER_ITER, str(clip))
+    assert record["seed"] == 7 and record["seed_source"] == "rand_seed"
+    assert eff["char_file"].endswith("humanoid/humanoid.xml") and eff["motion_file_from"] == "--motion_file"
+    trained = yaml.safe_load(folder.config_file("env").read_text())
+    assert trained["env"]["motion_file"] == str(clip)  # the clip trained on is the one asked for
+    assert [(r["iteration"], r["samples"]) for r in fields_run["rows"]] == [(0, PER_ITER), (1, 2 * PER_ITER)]
+    assert "every-field" in Path(fields_run["out_dir"]).name
+    assert fields_run["exit_code"] == ExitCode.OK and folder.read_state().state.value == "finished"
+
+    s = fields_run["summary"]  # what the run list shows, from the run folder
+    assert (s["seed"], s["num_envs"], s["samples"], s["max_samples"]) == (7, 4, 2 * PER_ITER, 2 * PER_ITER)
+    assert s["motion_file"] == str(clip) and not s["dataset"] and s["char_file"].endswith("humanoid.xml")
+    assert s["end_state"] == "finished" and fields_run["reason"].startswith("reached max_samples 256")
+    assert math.isfinite(s["test_return"]) and s["elapsed_s"] > 0 and s["samples_per_s"] > 0
+    assert s["test_return"] == fields_run["rows"][-1]["test_return"]
+
+
+def test_again_with_this_seed_repeats_the_rows(server: StudioProcess, fields_run: dict) -> None:
+    r = server.post(f"/api/runs/{fields_run['id']}/again", {})
+    assert r.status_code == 201, r.text
+    again = ended(server, r.json()["id"])
+    assert again["status"] == "finished", console(again)
+    assert again["config"] == {**fields_run["config"], "rand_seed": 7}
+    assert RunFolder(again["out_dir"]).read_args()["seed"] == 7 and again["summary"]["seed"] == 7
+    rows = data_rows(server, again["id"])
+    assert [without_timing(r) for r in rows] == [without_timing(r) for r in fields_run["rows"]]
+
+
+@pytest.fixture(scope="module")
+def resumed_run(server: StudioProcess, fields_run: dict) -> dict:
+    run_id = fields_run["id"]
+    r = server.post(f"/api/runs/{run_id}/resume", {})
+    assert r.status_code == 409 and "give a larger max_samples" in r.json()["detail"]
+    r = server.post(f"/api/runs/{run_id}/resume", {"max_samples": 3 * PER_ITER})
+    assert r.status_code == 200, r.text
+    done = ended(server, run_id)
+    assert done["status"] == "finished", console(done)
+    return done
+
+
+def test_continue_with_a_larger_budget(server: StudioProcess, fields_run: dict, resumed_run: dict) -> None:
+    rows = server.get(f"/api/runs/{resumed_run['id']}/metrics", params={"follow": "false"}).json()
+    assert [r.get("event") for r in rows] == [None, None, "resume", None]
+    marker = rows[2]
+    assert (marker["iteration"], marker["samples"], marker["max_samples"]) == (2, 2 * PER_ITER, 3 * PER_ITER)
+    assert rows[:2] == fields_run["rows"] and (rows[3]["iteration"], rows[3]["samples"]) == (2, 3 * PER_ITER)
+    argv = resumed_run["command"]
+    assert argv[argv.index("--max_samples") + 1] == str(3 * PER_ITER)
+    assert argv[argv.index("--model_file") + 1] == str(RunFolder(resumed_run["out_dir"]).model_file)
+    s = resumed_run["summary"]
+    assert (s["samples"], s["max_samples"], s["resumes"], s["seed"]) == (3 * PER_ITER, 3 * PER_ITER, 1, 7)
+    assert resumed_run["attempts"] == 2 and resumed_run["reason"].startswith("reached max_samples 384")
+
+
+@pytest.fixture(scope="module")
+def diverged_run(server: StudioProcess) -> dict:
+    """The demo arg file with a learning rate of 1e4 (the issue's recipe for NaN losses), 8 envs."""
+    agent = (PROJECT_ROOT / "data/agents/deepmimic_humanoid_ppo_cpu_agent.yaml").read_text()
+    assert agent.count("learning_rate: 1e-4") == 2
+    args_dir = server.runs_dir / "args"
+    args_dir.mkdir(exist_ok=True)
+    (args_dir / "lr_1e4_agent.yaml").write_text(agent.replace("learning_rate: 1e-4", "learning_rate: 1e4"))
+    demo = (PROJECT_ROOT / DEMO_ARGS).read_text()
+    demo = demo.replace("data/agents/deepmimic_humanoid_ppo_cpu_agent.yaml", str(args_dir / "lr_1e4_agent.yaml"))
+    (args_dir / "diverge.txt").write_text(demo)
+    r = server.post("/api/runs", {"arg_file": "args/diverge.txt", "num_envs": 8, "max_samples": 4 * 8 * 32})
+    assert r.status_code == 201, r.text
+    return ended(server, r.json()["id"])
+
+
+def test_a_diverged_run_says_so_with_its_line(server: StudioProcess, diverged_run: dict) -> None:
+    run = diverged_run
+    assert run["status"] == "diverged", console(run)
+    assert run["exit_code"] == ExitCode.DIVERGED and run["reason"].startswith("diverged at iteration ")
+    assert run["summary"]["end_state"] == "diverged" and run["summary"]["end_reason"] == run["reason"]
+    listed = next(r for r in server.get("/api/runs").json() if r["id"] == run["id"])
+    assert listed["status"] == "diverged" and listed["reason"] == run["reason"]
+    # The non-finite values reach a browser as JSON it can parse: null, named in `nonfinite`.
+    r = server.get(f"/api/runs/{run['id']}/metrics", params={"follow": "false"})
+    assert "NaN" not in r.text and "Infinity" not in r.text
+    last = r.json()[-1]
+    assert last["nonfinite"] and all(last[k] is None for k in last["nonfinite"])
+    assert set(last["nonfinite"].values()) <= {"nan", "inf", "-inf"}
+    with server.client.stream("GET", f"/api/runs/{run['id']}/metrics", timeout=30) as stream:
+        text = "".join(stream.iter_text())
+    assert "NaN" not in text and '"nonfinite"' in text and '"status": "diverged"' in text
+
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH")
+def test_the_run_list_shows_seed_progress_and_end_state(
+    server: StudioProcess, resumed_run: dict, diverged_run: dict, clip: Path
+) -> None:
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
+        try:
+            page = browser.new_page(viewport={"width": 1500, "height": 900})
+            page.goto(server.url)
+            page.wait_for_selector(f"[data-run-id='{diverged_run['id']}']", timeout=30_000)
+            # The launch form defaults to the demo arg file (trains without MimicKit data).
+            assert page.locator("#arg-file").input_value() == str(PROJECT_ROOT / DEMO_ARGS)
+
+            item = page.locator(f"[data-run-id='{resumed_run['id']}']")
+            field = lambda name: item.locator(f"[data-field={name}]")  # noqa: E731
+            assert field("status").inner_text() == "finished" and field("seed").inner_text() == "7"
+            assert field("samples").inner_text() == "384 / 384 samples"
+            bar = field("progress")
+            assert (bar.get_attribute("value"), bar.get_attribute("max")) == ("384", "384")
+            assert field("clip").inner_text() == clip.name and field("envs").inner_text() == "4 envs"
+            assert field("char").inner_text() == "humanoid.xml" and "resumed 1×" in item.inner_text()
+            assert field("test-return").inner_text() == f"{resumed_run['summary']['test_return']:.2f}"
+
+            bad = page.locator(f"[data-run-id='{diverged_run['id']}']")
+            assert bad.locator("[data-field=status]").inner_text() == "diverged"
+            assert bad.locator("[data-field=reason]").inner_text() == diverged_run["reason"]
+
+            item.click()  # its curves: the resume drawn as a marker
+            page.wait_for_selector("#curves canvas[data-group=returns][data-markers='1']", timeout=15_000)
+            bad.click()  # the diverged run's losses: the non-finite iteration marked
+            page.wait_for_selector("#curves canvas[data-group=losses]:not([data-nonfinite='0'])", timeout=15_000)
+        finally:
+            browser.close()
