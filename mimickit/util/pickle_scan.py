@@ -85,6 +85,16 @@ for _c, _fmt, _cost in (
 ):
     _op(_c, _COUNTED, _cost)
     _COUNT_FORMAT[ord(_c)] = (_fmt, struct.calcsize(_fmt))
+# Runs of argument-less opcodes of one cost (STOP excluded), keyed by that cost.
+_BYTE = [bytes([i]) for i in range(256)]
+_ONE_BYTE_RUNS = {
+    cost: re.compile(
+        b"["
+        + b"".join(re.escape(_BYTE[i]) for i in range(256) if _KIND[i] == 0 and _COST[i] == cost and i != _STOP)
+        + b"]*"
+    )
+    for cost in {_COST[i] for i in range(256) if _KIND[i] == 0}
+}
 # A decoded string may take 4 bytes per encoded byte (one astral character widens the whole string).
 _STRING_OPS = frozenset(ord(c) for c in "U\x8cTX\x8dSV")
 
@@ -117,11 +127,16 @@ def scan_pickle(data: bytes, start: int = 0, limits: ClipLimits | None = None) -
             continue
         kind = kinds[code]
         if kind == 0:
-            pos += 1
-            est += costs[code]
             if code == _STOP:
                 _check_budget(est, limits)
-                return pos, est
+                return pos + 1, est
+            if data[pos + 1 : pos + 2] == _BYTE[code]:  # a run of one-byte opcodes (a list bomb): one match
+                end = _ONE_BYTE_RUNS[costs[code]].match(data, pos).end()
+                est += costs[code] * (end - pos)
+                pos = end
+            else:
+                pos += 1
+                est += costs[code]
             continue
         if kind > 0:  # cheap fixed-length ones, in a run
             end = cheap(data, pos).end()

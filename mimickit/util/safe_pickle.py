@@ -151,7 +151,7 @@ class _Budget:
     def check_count(self, count: int, what: str) -> None:
         if count > self.limits.max_values:
             raise PickleLimitError(
-                f"{what} has {count} elements, over the limit of {self.limits.max_values}"
+                f"{what} has {_short(count)} elements, over the limit of {self.limits.max_values}"
                 f" (set {env_var_for('max_values')} to allow more)"
             )
 
@@ -290,6 +290,8 @@ class SafeUnpickler(pickle.Unpickler):
 
     def find_class(self, module: str, name: str) -> Any:
         found = self._globals.get((module, name))
+        if found is None and name == "complex" and module in ("builtins", "__builtin__"):
+            raise UnsafePickleError("complex numbers are not allowed (a clip holds real numbers only)")
         if found is None:
             raise UnsafePickleError(f"refused to load global '{module[:80]}.{name[:80]}'")
         return found
