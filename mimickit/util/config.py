@@ -83,6 +83,8 @@ def read_text_file(path: str | Path, what: str = "file", max_bytes: int = MAX_YA
     """The UTF-8 text of a small regular file; a missing, huge, binary or non-UTF-8 file is one line."""
     p = Path(path)
     if not p.is_file():
+        if p.exists():  # a folder, a FIFO, /dev/zero: reading would fail or never end
+            raise MimicKitError(f"{p}: not a regular file, so not a {what}")
         raise MimicKitError(f"{what} not found: {p}")
     try:
         size = p.stat().st_size

@@ -114,6 +114,20 @@ def test_oversized_yaml(tmp_path: Path, content: bytes) -> None:
     assert_one_line(e, "byte limit")
 
 
+@pytest.mark.parametrize(
+    "path, needle",
+    [
+        pytest.param("/dev/zero", "not a regular file", id="err-yaml-dev-zero"),
+        pytest.param("/", "not a regular file", id="err-yaml-a-folder"),
+        pytest.param("/no/such/env.yaml", "not found", id="err-yaml-missing"),
+    ],
+)
+def test_not_a_regular_file(path: str, needle: str) -> None:
+    with pytest.raises(MimicKitError) as e:
+        load_yaml(path)
+    assert_one_line(e, needle, path)
+
+
 def test_small_aliases_are_fine(tmp_path: Path) -> None:  # ok-: anchors as people use them stay accepted
     path = write(tmp_path, "a.yaml", "w: &w [1.0, 0.5]\nx: *w\ny: {<<: {k: 1}, j: 2}\n")
     assert load_yaml(path) == {"w": [1.0, 0.5], "x": [1.0, 0.5], "y": {"k": 1, "j": 2}}
