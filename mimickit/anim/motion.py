@@ -223,7 +223,8 @@ def _frames_array(v: Any, source: str, limits: ClipLimits) -> np.ndarray:
         if v.ndim != 2:
             raise MimicKitError(f"{source}: frames must be [num_frames, 6 + dofs], got shape {v.shape}")
         _check_dims(v.shape[0], v.shape[1], source, limits)
-        return v.astype(np.float32)
+        with np.errstate(over="ignore"):  # beyond float32 is inf, reported as a non-finite column
+            return v.astype(np.float32)
     if not isinstance(v, (list, tuple)):
         raise MimicKitError(f"{source}: frames must be a list of frames, got {type(v).__name__}")
     _check_dims(len(v), None, source, limits)
@@ -231,7 +232,8 @@ def _frames_array(v: Any, source: str, limits: ClipLimits) -> np.ndarray:
     _check_dims(len(v), width, source, limits)
     _check_leaves(v, source)
     try:
-        return np.array(v, dtype=np.float32)
+        with np.errstate(over="ignore"):
+            return np.array(v, dtype=np.float32)
     except OverflowError:
         r, c = _find(v, lambda x: isinstance(x, int) and abs(x) > 1e308)
         raise MimicKitError(f"{source}: frames[{r}][{c}] is an integer too large for a float") from None

@@ -129,8 +129,17 @@ def _swap_pending(obj: Any, done: dict[int, Any], depth: int) -> Any:
 
 
 def _short_error(e: BaseException) -> str:
-    text = str(e)
-    return f"{type(e).__name__}: {text[:200]}" if text else type(e).__name__
+    text = _printable(str(e)[:200])
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def _printable(text: str) -> str:
+    """Untrusted text for a one-line message: newlines and other control characters escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def _refused(module: str, name: str) -> UnsafePickleError:
+    return UnsafePickleError(f"refused to load global '{_printable(module[:80])}.{_printable(name[:80])}'")
 
 
 class _Budget:
@@ -293,7 +302,7 @@ class SafeUnpickler(pickle.Unpickler):
         if found is None and name == "complex" and module in ("builtins", "__builtin__"):
             raise UnsafePickleError("complex numbers are not allowed (a clip holds real numbers only)")
         if found is None:
-            raise UnsafePickleError(f"refused to load global '{module[:80]}.{name[:80]}'")
+            raise _refused(module, name)
         return found
 
     def persistent_load(self, pid: Any) -> Any:
@@ -389,7 +398,7 @@ class _RecordUnpickler(pickle.Unpickler):
     def find_class(self, module: str, name: str) -> Any:
         if self._records is not None and module == "torch" and name in _STORAGE_DTYPES:
             return _Marker(f"torch.{name}", _STORAGE_DTYPES[name])
-        raise UnsafePickleError(f"refused to load global '{module[:80]}.{name[:80]}'")
+        raise _refused(module, name)
 
     def persistent_load(self, pid: Any) -> Any:
         ok = self._records is not None and isinstance(pid, tuple) and len(pid) in (5, 6) and pid[0] == "storage"

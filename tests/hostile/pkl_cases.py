@@ -90,14 +90,7 @@ def storage_bytes(
     info = {"protocol_version": 1001, "little_endian": little_endian, "type_sizes": {"short": 2, "int": 4, "long": 4}}
     head = pickle.dumps(magic, protocol=2) + pickle.dumps(1001, protocol=2) + pickle.dumps(info, protocol=2)
     record = (
-        b"\x80\x02("
-        + v("storage", 2)
-        + glob("torch", storage)
-        + v(key, 2)
-        + v("cpu", 2)
-        + v(numel, 2)
-        + b"Nt"
-        + b"Q."
+        b"\x80\x02(" + v("storage", 2) + glob("torch", storage) + v(key, 2) + v("cpu", 2) + v(numel, 2) + b"Nt" + b"Q."
     )
     keys_pickle = pickle.dumps(keys if keys is not None else [key], protocol=2)
     return head + record + keys_pickle + struct.pack("<q", numel) + values + trailing
@@ -410,3 +403,43 @@ def frames_from_file(frames: np.ndarray, data: bytes) -> bool:
 
     text = [float(t) for t in re.findall(rb"-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?", data)[:100_000]]
     return bool(np.isin(vals, np.array(text, dtype=np.float32)).all()) if text else False
+
+
+def classify_batch(blobs: list[bytes], per_input_s: float = 5.0) -> bytes:
+    """Run in a guarded child by the fuzz test: each input through `motion_from_bytes`, one outcome
+    each as JSON: "ok" (a clip whose frames all come from the file), "error" (one MimicKitError
+    line), or a failure: "heap" (frames not from the file), "hang" (over `per_input_s`), "memory",
+    "multiline" (an error of more than one line) or "exception:<type>" (anything but MimicKitError)."""
+    import json
+    import signal
+    import time
+
+    from mimickit.anim.motion import motion_from_bytes
+    from mimickit.util.errors import MimicKitError
+
+    def on_alarm(signum: int, frame: object) -> None:
+        raise TimeoutError("per-input alarm")
+
+    signal.signal(signal.SIGALRM, on_alarm)
+    out = []
+    for blob in blobs:
+        t0 = time.perf_counter()
+        signal.setitimer(signal.ITIMER_REAL, per_input_s)
+        try:
+            m = motion_from_bytes(blob, source="fuzz.pkl", sanitize_nan=False)
+            kind, detail = ("ok", "") if frames_from_file(m.frames, blob) else ("heap", str(m.frames.shape))
+        except MimicKitError as e:
+            msg = str(e)
+            kind = "memory" if "ran out of memory" in msg else "multiline" if "\n" in msg else "error"
+            detail = msg[:300]
+        except TimeoutError:
+            kind, detail = "hang", f"over {per_input_s:g} s"
+        except BaseException as e:  # noqa: BLE001 - the point is to see it
+            kind, detail = f"exception:{type(e).__name__}", str(e)[:300]
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+        elapsed = time.perf_counter() - t0
+        if elapsed > per_input_s and kind in ("ok", "error"):
+            kind, detail = "hang", f"{elapsed:.1f} s"
+        out.append({"kind": kind, "detail": detail, "s": round(elapsed, 4)})
+    return json.dumps(out).encode()
