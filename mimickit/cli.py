@@ -1,6 +1,8 @@
 """The `mimickit` command: `motion info|convert|validate`, `plot`, `video`, and the training entry points.
 
 Every user mistake (bad clip, bad config, missing file) ends as one line on stderr and exit code 2.
+`train` also ends with 1 (an error after the run started: state failed) or 3 (diverged); 0 is finished
+or stopped (`mimickit.run_folder.ExitCode`).
 """
 
 from __future__ import annotations
