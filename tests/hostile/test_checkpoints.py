@@ -36,6 +36,11 @@ ARG_FILE = PROJECT_ROOT / "args" / "deepmimic_humanoid_ppo_args.txt"
 MAX_LINE = 700
 
 
+def one_case(case_id: str) -> pytest.MarkDecorator:
+    """A single case with its `err-`/`ok-` id, so the suite counts it like the parametrized ones."""
+    return pytest.mark.parametrize("case", [case_id], ids=[case_id])
+
+
 @pytest.fixture(scope="module")
 def agent() -> BaseAgent:
     env = build_env(ENV_YAML, ENGINE_YAML, 1, "cpu")
@@ -254,7 +259,10 @@ def test_hostile_checkpoint_is_refused(agent: BaseAgent, tmp_path: Path, make: M
     assert torch.equal(agent.state_dict()["_obs_norm._mean"], before)
 
 
-def test_archive_expanding_past_the_limit(agent: BaseAgent, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@one_case("err-pt-zip-expands-past-limit")
+def test_archive_expanding_past_the_limit(
+    case: str, agent: BaseAgent, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """err-: a zip whose compressed entry expands past MAX_CHECKPOINT_BYTES (set low here) is refused unread."""
     monkeypatch.setattr(checkpoint, "MAX_CHECKPOINT_BYTES", 1 << 20)
     path = zip_with({"m/data.pkl": b"\0" * (4 << 20)}, zipfile.ZIP_DEFLATED)({}, tmp_path)
@@ -280,19 +288,24 @@ def test_not_a_file(agent: BaseAgent, tmp_path: Path, make: Callable[[Path], Pat
 # ---------------------------------------------------------------- accepted checkpoints
 
 
-def test_own_checkpoint_loads(agent: BaseAgent, tmp_path: Path) -> None:  # ok-
+@one_case("ok-pt-own-checkpoint")
+def test_own_checkpoint_loads(case: str, agent: BaseAgent, tmp_path: Path) -> None:  # ok-
     path = save(state_of(agent, tmp_path), tmp_path / "m.pt")
     agent.load(path)
     assert nonfinite_tensors(read_checkpoint(path)) == []
 
 
-def test_reference_checkpoint_loads(agent: BaseAgent, tmp_path: Path) -> None:  # ok-: no _train_state
+@one_case("ok-pt-reference-no-train-state")
+def test_reference_checkpoint_loads(case: str, agent: BaseAgent, tmp_path: Path) -> None:  # ok-: no _train_state
     agent.save(tmp_path / "ref.pt", include_train_state=False)
     assert TRAIN_STATE_KEY not in read_checkpoint(tmp_path / "ref.pt")
     agent.load(tmp_path / "ref.pt")
 
 
-def test_future_train_state_field_is_kept(agent: BaseAgent, tmp_path: Path) -> None:  # ok-: forward compatible
+@one_case("ok-pt-unknown-train-state-field-kept")
+def test_future_train_state_field_is_kept(
+    case: str, agent: BaseAgent, tmp_path: Path
+) -> None:  # ok-: forward compatible
     path = set_ts("resumes", [{"iteration": 3}])(state_of(agent, tmp_path), tmp_path)
     assert read_checkpoint(path)[TRAIN_STATE_KEY]["resumes"] == [{"iteration": 3}]
     agent.load(path)
@@ -305,7 +318,8 @@ def test_exported_checkpoint_loads(agent: BaseAgent, tmp_path: Path, reference: 
     agent.load(tmp_path / "e.pt")
 
 
-def test_trained_checkpoint_resumes_and_stale_temp_was_removed(agent: BaseAgent, trained: Path) -> None:
+@one_case("ok-pt-trained-run-resumes-stale-temp-removed")
+def test_trained_checkpoint_resumes_and_stale_temp_was_removed(case: str, agent: BaseAgent, trained: Path) -> None:
     """ok-: a real run's checkpoint (Adam/SGD states after a step) passes every check; the temp file
     planted before the run started is gone."""
     assert not list(trained.glob(".model.pt.*"))
@@ -318,7 +332,8 @@ def test_trained_checkpoint_resumes_and_stale_temp_was_removed(agent: BaseAgent,
 # ---------------------------------------------------------------- non-finite listing
 
 
-def test_nonfinite_tensors_names_every_bad_tensor(agent: BaseAgent, tmp_path: Path) -> None:
+@one_case("ok-pt-nonfinite-tensors-listed")
+def test_nonfinite_tensors_names_every_bad_tensor(case: str, agent: BaseAgent, tmp_path: Path) -> None:
     state = state_of(agent, tmp_path)
     keys = [k for k in state if k.startswith("_model.") and k.endswith("weight")][:2]
     state[keys[0]] = state[keys[0]].clone()
@@ -333,7 +348,8 @@ def test_nonfinite_tensors_names_every_bad_tensor(agent: BaseAgent, tmp_path: Pa
 # ---------------------------------------------------------------- saving
 
 
-def test_save_into_read_only_folder(agent: BaseAgent, tmp_path: Path) -> None:  # err-: the real thing
+@one_case("err-save-read-only-folder")
+def test_save_into_read_only_folder(case: str, agent: BaseAgent, tmp_path: Path) -> None:  # err-: the real thing
     with read_only_dir(tmp_path / "ro") as ro:
         with pytest.raises(MimicKitError) as e:
             agent.save(ro / "model.pt")
@@ -341,7 +357,8 @@ def test_save_into_read_only_folder(agent: BaseAgent, tmp_path: Path) -> None:  
         assert list(ro.iterdir()) == []
 
 
-def test_save_on_full_disk(agent: BaseAgent, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@one_case("err-save-full-disk")
+def test_save_on_full_disk(case: str, agent: BaseAgent, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """err-: ENOSPC at the write (simulated; the read-only test is the real one): one line, the old
     model.pt stays whole and no temp file is left."""
     agent.save(tmp_path / "model.pt")
@@ -358,7 +375,8 @@ def test_save_on_full_disk(agent: BaseAgent, tmp_path: Path, monkeypatch: pytest
     assert [p.name for p in tmp_path.iterdir()] == ["model.pt"]
 
 
-def test_save_removes_stale_temp_files(agent: BaseAgent, tmp_path: Path) -> None:  # ok-
+@one_case("ok-save-removes-stale-temp-files")
+def test_save_removes_stale_temp_files(case: str, agent: BaseAgent, tmp_path: Path) -> None:  # ok-
     stale = [tmp_path / ".model.pt.a1b2c3d4", tmp_path / ".model.pt.zz__99xx"]
     for p in stale:
         p.write_bytes(b"partial")

@@ -32,6 +32,11 @@ DATA_YAMLS = sorted((PROJECT_DATA_DIR / "envs").glob("*.yaml")) + sorted((PROJEC
 MAX_LINE = MAX_ECHO_CHARS + 400  # the message's own words plus at most MAX_ECHO_CHARS of echoed input
 
 
+def one_case(case_id: str) -> pytest.MarkDecorator:
+    """A single case with its `err-`/`ok-` id, so the suite counts it like the parametrized ones."""
+    return pytest.mark.parametrize("case", [case_id], ids=[case_id])
+
+
 def bomb(levels: int, width: int, key: str = "episode_length") -> str:
     """A "billion laughs" document: `key` expands to width**levels strings."""
     lines = [f"l0: &l0 [{', '.join(['lol'] * width)}]"]
@@ -95,7 +100,10 @@ def test_hostile_yaml_text_is_one_line(content: str) -> None:
     assert_one_line(e, "upload.yaml")
 
 
-def test_billion_laughs_env_config_is_refused(tmp_path: Path) -> None:  # the issue's case, through the env loader
+@one_case("err-env-billion-laughs-episode-length")
+def test_billion_laughs_env_config_is_refused(
+    case: str, tmp_path: Path
+) -> None:  # the issue's case, through the env loader
     env = write(tmp_path, "env.yaml", "env_name: deepmimic\n" + bomb(9, 10).replace("\nl", "\n_l"))
     with pytest.raises(MimicKitError) as e:
         load_env_configs(env, ENGINE_YAML)
@@ -128,7 +136,8 @@ def test_not_a_regular_file(path: str, needle: str) -> None:
     assert_one_line(e, needle, path)
 
 
-def test_small_aliases_are_fine(tmp_path: Path) -> None:  # ok-: anchors as people use them stay accepted
+@one_case("ok-yaml-small-aliases-and-merge")
+def test_small_aliases_are_fine(case: str, tmp_path: Path) -> None:  # ok-: anchors as people use them stay accepted
     path = write(tmp_path, "a.yaml", "w: &w [1.0, 0.5]\nx: *w\ny: {<<: {k: 1}, j: 2}\n")
     assert load_yaml(path) == {"w": [1.0, 0.5], "x": [1.0, 0.5], "y": {"k": 1, "j": 2}}
 
@@ -231,7 +240,8 @@ def test_agent_config_values(tmp_path: Path, fields: dict[str, object], needle: 
     assert_one_line(e, needle, "agent.yaml")
 
 
-def test_echo_of_a_large_bad_value_is_bounded(tmp_path: Path) -> None:  # a bomb just under the node limit
+@one_case("err-env-bomb-under-limit-bounded-echo")
+def test_echo_of_a_large_bad_value_is_bounded(case: str, tmp_path: Path) -> None:  # a bomb just under the node limit
     path = write(tmp_path, "env.yaml", "env_name: deepmimic\n" + bomb(5, 9).replace("\nl", "\n_l"))
     with pytest.raises(MimicKitError) as e:
         load_env_configs(path, ENGINE_YAML)
@@ -293,7 +303,8 @@ def test_bad_run_args(tmp_path: Path, argv: list[str], needle: str) -> None:
     assert_one_line(e, needle)
 
 
-def test_typo_in_arg_file_names_the_file(tmp_path: Path) -> None:  # err-: the key came from the file
+@one_case("err-argfile-num-env-typo")
+def test_typo_in_arg_file_names_the_file(case: str, tmp_path: Path) -> None:  # err-: the key came from the file
     f = write(tmp_path, "my_args.txt", ARG_FILE.read_text() + "\n--num_env 8\n")
     with pytest.raises(MimicKitError) as e:
         check_run_args(parsed(["--arg_file", str(f)]))
@@ -316,7 +327,8 @@ def test_hostile_arg_file(tmp_path: Path, content: bytes, needle: str) -> None:
     assert_one_line(e, needle, "bad_args.txt")
 
 
-def test_unwritable_out_dir(tmp_path: Path) -> None:  # err-: a read-only folder (the real thing)
+@one_case("err-outdir-read-only")
+def test_unwritable_out_dir(case: str, tmp_path: Path) -> None:  # err-: a read-only folder (the real thing)
     with read_only_dir(tmp_path / "ro") as ro:
         with pytest.raises(MimicKitError) as e:
             check_run_args(parsed(["--arg_file", str(ARG_FILE), "--out_dir", str(ro / "run")]))
@@ -338,7 +350,8 @@ def test_out_dir_that_is_a_file(tmp_path: Path, make, needle: str) -> None:
     assert_one_line(e, "--out_dir", needle)
 
 
-def test_full_disk_out_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@one_case("err-outdir-full-disk")
+def test_full_disk_out_dir(case: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """err-: a full disk, simulated at the write (the read-only test above is the real-folder one)."""
 
     def full(fd: int, data: bytes) -> int:
