@@ -50,6 +50,8 @@ class ArgParser:
             parsed = _parse_tokens(tokens)
         except MimicKitError as e:
             raise MimicKitError(f"{path}: {e}") from None
+        if "arg_file" in parsed:  # the reference would ignore it silently; one arg file per run
+            raise MimicKitError(f"{path}: an arg file cannot name another --arg_file")
         for key, vals in parsed.items():
             if key not in self._table:
                 self._table[key] = vals

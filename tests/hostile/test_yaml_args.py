@@ -316,6 +316,7 @@ ARG_FILE_CASES = [
     pytest.param("--num_envs 8 \u00e9\n".encode("latin-1"), "not UTF-8", id="err-argfile-latin1"),
     pytest.param(b"--num_envs " + b"1" * (1 << 20), "byte limit", id="err-argfile-over-size-limit"),
     pytest.param(b"num_envs 8\n", "comes before any --key", id="err-argfile-value-before-key"),
+    pytest.param(b"--arg_file other.txt\n", "cannot name another --arg_file", id="err-argfile-nested-arg-file"),
 ]
 
 
