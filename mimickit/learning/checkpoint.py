@@ -70,8 +70,12 @@ def read_checkpoint(path: str | Path, map_location: torch.device | str = "cpu") 
     for key, val in state.items():
         if not isinstance(key, str):
             raise MimicKitError(f"{path}: not a checkpoint (key {_short(repr(key))} is not a string)")
-        if key != TRAIN_STATE_KEY and not isinstance(val, torch.Tensor):
+        if key == TRAIN_STATE_KEY:
+            continue
+        if not isinstance(val, torch.Tensor):
             raise MimicKitError(f"{path}: '{_short(key)}' is not a tensor (got {type(val).__name__})")
+        if val.layout != torch.strided or val.is_quantized:  # a network's weights are plain dense tensors
+            raise MimicKitError(f"{path}: '{_short(key)}' is not a dense tensor ({val.layout})")
     if TRAIN_STATE_KEY in state:
         state[TRAIN_STATE_KEY] = check_train_state(state[TRAIN_STATE_KEY], path)
     return state
@@ -108,7 +112,7 @@ def check_train_state(ts: Any, source: str | Path) -> dict[str, Any]:
     out["iteration"] = _int_field(ts, "iteration", 0, where)
     out["samples"] = _int_field(ts, "samples", 0, where)
     out["wall_time_hours"] = _float_field(ts, "wall_time_hours", 0.0, where, minimum=0.0)
-    test = ts.get("test") or {}
+    test = ts.get("test", {})
     if not isinstance(test, dict):
         raise MimicKitError(f"{where}.test must be a mapping, got {type(test).__name__}")
     out["test"] = {
@@ -116,7 +120,7 @@ def check_train_state(ts: Any, source: str | Path) -> dict[str, Any]:
         "mean_ep_len": _float_field(test, "mean_ep_len", 0.0, f"{where}.test", minimum=0.0),
         "num_eps": _int_field(test, "num_eps", 0, f"{where}.test"),
     }
-    out["optimizers"] = _check_optimizers(ts.get("optimizers") or {}, where)
+    out["optimizers"] = _check_optimizers(ts.get("optimizers", {}), where)
     return out
 
 

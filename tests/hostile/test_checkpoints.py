@@ -205,6 +205,10 @@ BAD_FILES = [
     pytest.param(set_key("_obs_norm._mean", [0.0] * 10), "'_obs_norm._mean' is not a tensor", id="err-pt-list-value"),
     pytest.param(set_key("_obs_norm._std", "1.0"), "'_obs_norm._std' is not a tensor", id="err-pt-string-value"),
     pytest.param(set_key("_model.extra", 3), "'_model.extra' is not a tensor", id="err-pt-int-value"),
+    pytest.param(
+        set_key("_obs_norm._mean", torch.zeros(3).to_sparse()), "not a dense tensor", id="err-pt-sparse-tensor"
+    ),
+    pytest.param(set_ts("test", None), "_train_state.test must be a mapping", id="err-ts-test-none"),
     pytest.param(set_key(TRAIN_STATE_KEY, [1, 2]), "_train_state must be a mapping, got list", id="err-ts-list"),
     pytest.param(set_key(TRAIN_STATE_KEY, "resume"), "_train_state must be a mapping, got str", id="err-ts-str"),
     pytest.param(set_key(TRAIN_STATE_KEY, torch.zeros(2)), "must be a mapping, got Tensor", id="err-ts-tensor"),
