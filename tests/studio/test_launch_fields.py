@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -221,5 +222,50 @@ def test_the_run_list_shows_seed_progress_and_end_state(
             page.wait_for_selector("#curves canvas[data-group=returns][data-markers='1']", timeout=15_000)
             bad.click()  # the diverged run's losses: the non-finite iteration marked
             page.wait_for_selector("#curves canvas[data-group=losses]:not([data-nonfinite='0'])", timeout=15_000)
+            page_actions(page, server, clip)
         finally:
             browser.close()
+
+
+def page_actions(page, server: StudioProcess, clip: Path) -> None:
+    """Launch from the form (every field), Continue with a budget, Again with the seed: each a real run."""
+
+    # The page reads the library when it loads; the library re-scans a listing in the background once
+    # it is older than a few seconds: a reload shows the clip written after the server started.
+    def clip_offered() -> int:
+        page.reload()
+        page.wait_for_selector("#arg-file option", state="attached")
+        time.sleep(0.5)  # the clips arrive with the configs, in the same Promise.all
+        return page.locator(f"#motion-file option[value='{clip}']").count()
+
+    wait_for(clip_offered, 30, "the clip in the launch form")
+    page.select_option("#motion-file", value=str(clip))
+    page.fill("#run-name", "from the form")
+    page.fill("#num-envs", "4")
+    page.fill("#max-samples", str(PER_ITER))
+    page.fill("#rand-seed", "11")
+    page.click("#launch-button")
+    run = wait_for(
+        lambda: next((r for r in server.get("/api/runs").json() if r["name"] == "from the form"), None), 10, "the run"
+    )
+    done = ended(server, run["id"])
+    assert done["status"] == "finished", console(done)
+    record = RunFolder(done["out_dir"]).read_args()
+    eff = record["effective"]
+    assert (eff["num_envs"], eff["max_samples"], eff["motion_file"], record["seed"]) == (4, PER_ITER, str(clip), 11)
+    assert eff["env_config"].endswith("deepmimic_humanoid_env.yaml")  # the demo arg file's, the form's default
+
+    item = page.locator(f"[data-run-id='{run['id']}']")
+    item.locator("[data-field=status]", has_text="finished").wait_for(timeout=15_000)
+    page.once("dialog", lambda d: d.accept(str(2 * PER_ITER)))  # Continue asks for the new budget
+    item.locator("button[data-action=continue]").click()
+    wait_for(lambda: run_of(server, run["id"])["attempts"] == 2, 15, "the run to be continued")
+    assert ended(server, run["id"])["summary"]["samples"] == 2 * PER_ITER
+    item = page.locator(f"[data-run-id='{run['id']}']")
+    item.locator("[data-field=samples]", has_text="256 / 256 samples").wait_for(timeout=15_000)
+
+    item.locator("button[data-action=again]").click()
+    again = wait_for(lambda: next((r for r in server.get("/api/runs").json() if r["id"] > run["id"]), None), 10)
+    assert again["config"]["rand_seed"] == 11 and again["config"]["motion_file"] == str(clip)
+    server.post(f"/api/runs/{again['id']}/stop", {})
+    assert ended(server, again["id"])["status"] == "stopped"
