@@ -187,6 +187,18 @@ def test_a_diverged_run_says_so_with_its_line(server: StudioProcess, diverged_ru
     assert "NaN" not in text and '"nonfinite"' in text and '"status": "diverged"' in text
 
 
+def test_a_refused_run_fails_with_the_trainers_line(server: StudioProcess) -> None:
+    typo = server.runs_dir / "args" / "typo.txt"
+    typo.parent.mkdir(exist_ok=True)
+    typo.write_text((PROJECT_ROOT / DEMO_ARGS).read_text() + "--num_env 8\n")
+    r = server.post("/api/runs", {"arg_file": "args/typo.txt"})
+    assert r.status_code == 201, r.text
+    run = ended(server, r.json()["id"])
+    assert run["status"] == "failed" and run["exit_code"] == ExitCode.REFUSED
+    assert run["reason"] == f"unknown argument --num_env in {typo} (did you mean --num_envs?)"
+    assert RunFolder(run["out_dir"]).read_state() is None  # refused before anything started
+
+
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 

@@ -253,3 +253,13 @@ def test_continue_a_finished_run_with_a_larger_budget(studio: StudioProcess) -> 
     assert [r.get("event") for r in rows] == [None] * 3 + ["resume"] + [None] * 2
     assert rows[3]["samples"] == 3 * per_row and rows[-1]["samples"] == 5 * per_row
     assert done["summary"]["resumes"] == 1 and done["summary"]["max_samples"] == 5 * per_row
+
+
+def test_the_stand_in_refuses_what_the_trainer_refuses(studio: StudioProcess) -> None:
+    """The fake trainer runs the real trainer's argument checks: a typo ends the run failed, naming it
+    (test_launch_fields.py has the same run with the real trainer)."""
+    path = write_arg_file(studio.runs_dir, "typo", rows=2, period=0.05)
+    path.write_text(path.read_text() + "--num_env 8\n")
+    failed = wait_status(studio, launch(studio, "typo")["id"], "failed")
+    assert failed["exit_code"] == 2 and not (Path(failed["out_dir"]) / "metrics.jsonl").exists()
+    assert "unknown argument --num_env" in failed["reason"] and "(did you mean --num_envs?)" in failed["reason"]
