@@ -291,6 +291,8 @@ class SafeUnpickler(pickle.Unpickler):
             ("torch._utils", "_rebuild_tensor_v2"): self._rebuild_tensor_v2,
             ("torch.storage", "_load_from_bytes"): self._load_from_bytes,
             ("_codecs", "encode"): _latin1_bytes,
+            ("__builtin__", "bytes"): _empty_bytes,  # how protocols 0-2 write b""
+            ("builtins", "bytes"): _empty_bytes,
         }
         for core in ("numpy.core", "numpy._core"):
             self._globals[(f"{core}.multiarray", "_reconstruct")] = self._reconstruct
@@ -340,7 +342,7 @@ class SafeUnpickler(pickle.Unpickler):
             raise UnsafePickleError("a tensor must be rebuilt from a storage")
         index = _tensor_index(storage.data.size, offset, size, stride, self._budget)
         self._budget.take(index.size * storage.data.itemsize, "a tensor")
-        return storage.data[index]
+        return np.asarray(storage.data[index])  # a 0-d tensor stays an array, never a numpy scalar
 
 
 def _tensor_index(numel: int, offset: Any, size: Any, stride: Any, budget: _Budget) -> np.ndarray:
@@ -374,6 +376,12 @@ def _latin1_bytes(text: Any, encoding: Any = None) -> bytes:
     if not isinstance(text, str) or encoding not in ("latin1", "latin-1"):
         raise UnsafePickleError("_codecs.encode is allowed only as (str, 'latin1'), how bytes are pickled")
     return text.encode("latin1")
+
+
+def _empty_bytes(*args: Any) -> bytes:
+    if args:
+        raise UnsafePickleError("bytes(...) is allowed only with no arguments, how b'' is pickled")
+    return b""
 
 
 class _Storage:
