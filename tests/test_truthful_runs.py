@@ -195,6 +195,8 @@ def test_resume_needs_a_larger_budget_then_continues_with_a_marker_row(baseline:
     assert data_rows(run)[2]["wall_time"] > data_rows(run)[1]["wall_time"], "the duration adds up"
     assert [e["samples"] for e in read_events(run)] == [2 * SAMPLES_PER_ITER]
     assert len(read_log(run)["samples"]) == 3  # plot reads the marker row as a marker, not as data
+    r = mimickit("plot", str(run), "--out", str(tmp_path / "curves.png"))
+    assert r.returncode == 0 and (tmp_path / "curves.png").stat().st_size > 0, r.stderr
 
     state = folder.read_state()
     assert state.state.value == "finished" and (state.iteration, state.samples) == (3, three)
