@@ -10,12 +10,14 @@ from __future__ import annotations
 import difflib
 import json
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable, Coroutine, Sequence
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 from fastapi import APIRouter, Header, Query, Request, Response
-from fastapi.responses import StreamingResponse
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, StreamingResponse
+from fastapi.routing import APIRoute
 from pydantic import BaseModel, Field, model_validator
 
 from mimickit.run_folder import RunFolder
@@ -26,7 +28,34 @@ from studio.run_summary import run_summary
 from studio.security import PathError, confine
 from studio.settings import Settings
 
-router = APIRouter(prefix="/runs", tags=["runs"])
+
+class OneLineErrors(APIRoute):
+    """A request these routes cannot validate gets a 422 with one line naming the field, not pydantic's list."""
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+
+        async def route(request: Request) -> Response:
+            try:
+                return await handler(request)
+            except RequestValidationError as e:
+                return JSONResponse({"detail": validation_line(e.errors())}, status_code=422)
+
+        return route
+
+
+def validation_line(errors: Sequence[Any]) -> str:
+    """`field: message` of the first problem (and how many more there are)."""
+    if not errors:
+        return "invalid request"
+    first = errors[0]
+    loc = [str(p) for p in first.get("loc", ()) if p != "body"]
+    msg = str(first.get("msg", "invalid value")).removeprefix("Value error, ")
+    line = f"{'.'.join(loc)}: {msg}" if loc else msg
+    return line + (f" (and {len(errors) - 1} more)" if len(errors) > 1 else "")
+
+
+router = APIRouter(prefix="/runs", tags=["runs"], route_class=OneLineErrors)
 MOTION_SUFFIXES = (".pkl", ".yaml", ".yml")
 MAX_SEED = 2**31 - 1
 

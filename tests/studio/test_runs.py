@@ -209,10 +209,13 @@ def test_api_takes_the_cli_path_forms(studio: StudioProcess) -> None:
 
 def test_unknown_launch_keys_are_refused_by_name(studio: StudioProcess) -> None:
     r = studio.post("/api/runs", {"arg_file": "args/short.txt", "num_env": 8})
-    assert r.status_code == 422 and "unknown key 'num_env'; did you mean 'num_envs'?" in r.text
+    assert r.status_code == 422 and r.json() == {"detail": "unknown key 'num_env'; did you mean 'num_envs'?"}
     r = studio.post(f"/api/runs/{launch(studio, 'short')['id']}/resume", {"budget": 10})
-    assert r.status_code == 422 and "unknown key 'budget'" in r.text
-    assert studio.post("/api/runs", {"arg_file": "args/short.txt", "rand_seed": -1}).status_code == 422
+    assert r.status_code == 422 and r.json()["detail"] == "unknown key 'budget'; known keys: max_samples"
+    r = studio.post("/api/runs", {"arg_file": "args/short.txt", "rand_seed": -1})
+    assert r.status_code == 422 and r.json()["detail"] == "rand_seed: Input should be greater than or equal to 0"
+    r = studio.post("/api/runs", {"num_envs": "many"})
+    assert r.status_code == 422 and r.json()["detail"].startswith("arg_file: Field required (and 1 more)")
 
 
 def test_again_with_the_seed_of_a_run(studio: StudioProcess) -> None:
