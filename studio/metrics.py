@@ -49,8 +49,8 @@ def last_rows(path: Path, n: int = 50) -> list[dict[str, Any]]:
     lines = chunk.split(b"\n")[:-1]  # the part after the last newline is not a complete row yet
     if len(chunk) < size and lines:
         lines = lines[1:]  # the first line may start mid-row
-    rows = [r for r in (_parse(line) for line in lines[-n:]) if r is not None]
-    return rows
+    rows = [r for r in (_parse(line) for line in lines) if r is not None]
+    return rows[-n:]
 
 
 def _parse(line: bytes) -> dict[str, Any] | None:

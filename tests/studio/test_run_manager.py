@@ -1,14 +1,18 @@
 """The run manager in-process: what a restart finds (gone processes, live ones it adopts), the
-registry's atomic creation, the trainer command line."""
+registry's atomic creation and an older registry's rows, the trainer command line, end states from
+the run folder; reading metrics.jsonl for a browser (non-finite values, a half-written row, the tail)."""
 
 from __future__ import annotations
 
+import json
+import sqlite3
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from mimickit.run_folder import EndState, RunFolder
+from studio.metrics import last_rows, read_rows
 from studio.registry import Registry, Run, RunStatus
 from studio.runs import RunManager, end_status, train_command
 from studio.settings import Settings
@@ -103,3 +107,55 @@ def test_restart_adopts_a_live_trainer_and_can_stop_it(tmp_path: Path) -> None:
         assert (Path(run.out_dir) / "model.pt").is_file()
     finally:
         manager.close()
+
+
+def test_an_older_registry_opens_with_its_rows(tmp_path: Path) -> None:
+    """A registry written before runs had a reason column and ended "succeeded"."""
+    path = tmp_path / "registry.sqlite"
+    with sqlite3.connect(path) as db:
+        db.execute(
+            "CREATE TABLE runs (id INTEGER PRIMARY KEY AUTOINCREMENT, name TEXT NOT NULL, config TEXT NOT NULL,"
+            " status TEXT NOT NULL, pid INTEGER, created_at REAL NOT NULL, started_at REAL, ended_at REAL,"
+            " out_dir TEXT NOT NULL, exit_code INTEGER, command TEXT, attempts INTEGER NOT NULL DEFAULT 0)"
+        )
+        db.execute(
+            "INSERT INTO runs (name, config, status, created_at, out_dir, exit_code) VALUES (?, ?, ?, ?, ?, ?)",
+            ("old", json.dumps({"arg_file": "x"}), "succeeded", 1.0, str(tmp_path / "1"), 0),
+        )
+    db.close()
+    reg = Registry(path)
+    run = reg.get(1)
+    assert (run.status, run.reason, run.exit_code) == (RunStatus.FINISHED, None, 0)
+    assert reg.update(1, reason="why").reason == "why"
+
+
+def test_metrics_rows_reach_a_browser_as_json_it_parses(tmp_path: Path) -> None:
+    path = tmp_path / "metrics.jsonl"
+    path.write_text(
+        '{"iteration": 0, "samples": 128, "critic_loss": 1.5}\n'
+        '{"event": "resume", "iteration": 1, "samples": 128}\n'
+        '{"iteration": 1, "samples": 256, "critic_loss": NaN, "actor_loss": Infinity, "adv_std": -Infinity}\n'
+        "not json\n"
+        '{"iteration": 2, "samp'  # half written: left for later
+    )
+    rows = read_rows(path)
+    assert rows[0] == {"iteration": 0, "samples": 128, "critic_loss": 1.5} and rows[1]["event"] == "resume"
+    assert rows[2] == {
+        "iteration": 1, "samples": 256, "critic_loss": None, "actor_loss": None, "adv_std": None,
+        "nonfinite": {"critic_loss": "nan", "actor_loss": "inf", "adv_std": "-inf"},
+    }  # fmt: skip
+    assert len(rows) == 3 and json.dumps(rows, allow_nan=False)  # strict JSON, as a browser parses it
+    assert last_rows(path, 2) == rows[1:] and read_rows(path, start=2) == rows[2:]
+
+
+def test_last_rows_reads_the_tail_of_a_long_file(tmp_path: Path) -> None:
+    path = tmp_path / "metrics.jsonl"
+    row = {"iteration": 0, "samples": 0, "padding": "x" * 1000}
+    with path.open("w") as f:
+        for i in range(1000):  # ~1 MB: more than the tail that is read
+            f.write(json.dumps({**row, "iteration": i}) + "\n")
+    assert [r["iteration"] for r in last_rows(path, 3)] == [997, 998, 999]
+    tail = last_rows(path, 10_000)  # only whole rows from the tail, none cut at its start
+    assert tail[-1]["iteration"] == 999 and all(r["padding"] == row["padding"] for r in tail)
+    assert 100 < len(tail) < 1000
+    assert last_rows(tmp_path / "missing.jsonl") == []
