@@ -12,6 +12,7 @@ time budget and a memory bound, for a server that must survive any file.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import pickle
@@ -82,10 +83,12 @@ def motion_from_bytes(
     data: bytes, *, source: str = "<bytes>", sanitize_nan: bool = True, limits: ClipLimits | None = None
 ) -> Motion:
     """A clip from the bytes of a `.pkl` file (e.g. an upload); `source` names it in errors."""
-    try:
+    motion = None
+    # The error is raised after the handler: inside it, the traceback still holds the half-built clip.
+    with contextlib.suppress(MemoryError):
         motion = _parse_clip(data, source, limits or ClipLimits.from_env())
-    except MemoryError:
-        raise MimicKitError(f"{source}: ran out of memory parsing the clip") from None
+    if motion is None:
+        raise MimicKitError(f"{source}: ran out of memory parsing the clip")
     return _sanitized(motion, source, sanitize_nan)
 
 

@@ -104,6 +104,8 @@ def _context() -> Any:
 
 
 def _child_main(conn: Connection, fn: Callable[..., bytes], args: tuple, label: str, memory_mb: float) -> None:
+    # Made before the bound: while a MemoryError is handled, its traceback still holds the memory.
+    out_of_memory = f"{label} needs more than {memory_mb:g} MB to parse".encode()
     try:
         _limit_memory(memory_mb)
         result = fn(*args)
@@ -111,7 +113,7 @@ def _child_main(conn: Connection, fn: Callable[..., bytes], args: tuple, label: 
             raise TypeError(f"{fn.__name__} returned {type(result).__name__}, not bytes")
         tag, body = _OK, result
     except MemoryError:
-        tag, body = _ERR, f"{label} needs more than {memory_mb:g} MB to parse".encode()
+        tag, body = _ERR, out_of_memory
     except MimicKitError as e:
         tag, body = _ERR, str(e).encode("utf-8", "replace")
     except BaseException as e:  # noqa: BLE001 - untrusted input: any failure is one line for the caller

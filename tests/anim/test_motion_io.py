@@ -11,8 +11,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mimickit.anim.motion import LoopMode, Motion, load_motion, save_motion
+from mimickit.anim.motion import (
+    LoopMode,
+    Motion,
+    load_motion,
+    load_motion_guarded,
+    motion_from_bytes_guarded,
+    motion_from_dict,
+    save_motion,
+)
 from mimickit.util.errors import MimicKitError
+from mimickit.util.limits import ClipLimits
 
 
 def _facts_table(test_data: Path) -> list[tuple[str, float, int, int, int, float]]:
@@ -128,3 +137,111 @@ def test_save_writes_plain_numbers(tmp_path):
     save_motion(tmp_path / "z.pkl", m)
     d = pickle.loads((tmp_path / "z.pkl").read_bytes())
     assert d["fps"] == 30 and type(d["fps"]) is int and d["loop_mode"] == 1
+
+
+# --- limits, and the guarded loaders -------------------------------------------------------------
+
+
+def _clip_bytes(num_frames: int, width: int = 34, fps: float = 30) -> bytes:
+    return pickle.dumps({"loop_mode": 0, "fps": fps, "frames": [[0.5 + i] * width for i in range(num_frames)]})
+
+
+def test_frame_limit_from_argument_and_environment(tmp_path, monkeypatch):
+    p = tmp_path / "long.pkl"
+    p.write_bytes(_clip_bytes(200))
+    with pytest.raises(MimicKitError, match=r"long.pkl: 200 frames is over the limit of 100 \(set MIMICKIT_MAX_FRAMES"):
+        load_motion(p, limits=ClipLimits(max_frames=100))
+    monkeypatch.setenv("MIMICKIT_MAX_FRAMES", "150")
+    with pytest.raises(MimicKitError, match="over the limit of 150"):
+        load_motion(p)
+    monkeypatch.setenv("MIMICKIT_MAX_FRAMES", "200")
+    assert load_motion(p).num_frames == 200
+
+
+def test_file_size_limit_is_checked_before_reading(tmp_path, monkeypatch):
+    p = tmp_path / "big.pkl"
+    p.write_bytes(_clip_bytes(200))  # 62 kB
+    monkeypatch.setenv("MIMICKIT_MAX_CLIP_MB", "0.01")
+    with pytest.raises(MimicKitError, match=r"big.pkl: \d+ bytes is over the 0.01 MB limit .* MIMICKIT_MAX_CLIP_MB"):
+        load_motion(p)
+    monkeypatch.setenv("MIMICKIT_MAX_CLIP_MB", "bogus")
+    with pytest.raises(MimicKitError, match="MIMICKIT_MAX_CLIP_MB='bogus' is not a number"):
+        load_motion(p)
+
+
+def test_fps_bounds_are_limits(tmp_path):
+    p = tmp_path / "slow.pkl"
+    p.write_bytes(_clip_bytes(3, fps=0.0005))
+    with pytest.raises(MimicKitError, match="fps must be between 0.001 and 10000"):
+        load_motion(p)
+    assert load_motion(p, limits=ClipLimits(min_fps=1e-4)).fps == 0.0005
+
+
+def test_motion_from_dict_checks_before_converting():
+    shared = [[0.5] * 100] * 100
+    bomb = {"loop_mode": 0, "fps": 30, "frames": [shared] * 100}  # 10**6 rows of 100 lists deep, if expanded
+    with pytest.raises(MimicKitError, match=r"frames\[0\]\[0\] is a list; frames must be 2-D"):
+        motion_from_dict(bomb)
+    m = motion_from_dict({"loop_mode": 1, "fps": np.float32(50), "frames": np.ones((4, 34), np.float64)})
+    assert (m.fps, m.num_frames, m.frames.dtype) == (50.0, 4, np.float32)
+
+
+def test_guarded_loader_matches_in_process(test_data):
+    for rel in ("humanoid/humanoid_double_kong.pkl", "go2/go2_run.pkl", "humanoid/long/humanoid_long_walk0.pkl"):
+        p = test_data / "motions" / rel
+        a, b = load_motion(p), load_motion_guarded(p)
+        assert (a.fps, a.loop_mode, a.nan_columns) == (b.fps, b.loop_mode, b.nan_columns)
+        np.testing.assert_array_equal(a.frames, b.frames)
+        assert b.frames.flags.writeable and b.frames.dtype == np.float32
+
+
+def test_guarded_loader_warns_and_sanitizes_in_the_caller(test_data):
+    walk = test_data / "motions/humanoid/humanoid_walk.pkl"
+    with pytest.warns(UserWarning, match=r"columns \[9, 10, 11\]"):
+        m = load_motion_guarded(walk)
+    assert (m.frames[:, 9:12] == 0).all()
+    raw = load_motion_guarded(walk, sanitize_nan=False)
+    assert np.isnan(raw.frames[:, 9:12]).all()
+
+
+def test_guarded_bytes_loader_errors_are_the_loaders(tmp_path):
+    m = motion_from_bytes_guarded(_clip_bytes(5), source="upload.pkl")
+    assert m.num_frames == 5
+    refused = r"^upload.pkl: not a MimicKit clip \(refused to load global '(os|posix).system'\)$"
+    with pytest.raises(MimicKitError, match=refused):
+        motion_from_bytes_guarded(pickle.dumps({"frames": _Evil()}), source="upload.pkl")
+    with pytest.raises(MimicKitError, match="^motion file not found"):
+        load_motion_guarded(tmp_path / "missing.pkl")
+
+
+LIST_BOMB = b"\x80\x03](" + b"]" * 16_000_000 + b"e."  # 16 MB: a gigabyte of empty lists
+
+
+def test_guarded_loader_memory_and_time_budgets(tmp_path):
+    p = tmp_path / "bomb.pkl"
+    p.write_bytes(LIST_BOMB)
+    with pytest.raises(MimicKitError, match="would need more than 1024 MB"):  # the pre-scan refuses it
+        load_motion_guarded(p)
+    # With the pre-scan's budget lifted, the child's address-space bound and its time budget stop it.
+    no_scan = ClipLimits(max_parse_mb=1e6, parse_memory_mb=300)
+    with pytest.raises(MimicKitError, match=r"bomb.pkl needs more than 300 MB to parse$"):
+        load_motion_guarded(p, limits=no_scan)
+    quick = ClipLimits(max_parse_mb=1e6, parse_timeout_s=0.2)
+    with pytest.raises(MimicKitError, match=r"bomb.pkl took longer than 0.2 s to parse$"):
+        load_motion_guarded(p, limits=quick)
+
+
+def test_in_process_memory_error_is_one_line(tmp_path):
+    p = tmp_path / "bomb.pkl"
+    p.write_bytes(LIST_BOMB)
+    code = (
+        "import resource, sys\n"
+        "from mimickit.anim.motion import load_motion\n"
+        "from mimickit.util.limits import ClipLimits\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (1500 * 2**20, resource.RLIM_INFINITY))\n"
+        "try:\n load_motion(sys.argv[1], limits=ClipLimits(max_parse_mb=1e6))\n"
+        "except Exception as e:\n print(type(e).__name__, e)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == f"MimicKitError {p}: ran out of memory parsing the clip"
