@@ -100,9 +100,9 @@ def run(
     if mode not in ("train", "test"):
         raise MimicKitError(f"--mode must be train or test, got {mode!r}")
     inputs = resolve_inputs(args)
-    max_samples = args.parse_int("max_samples", NO_LIMIT)
+    resume = None
     if mode == "train":
-        check_resume_budget(args.parse_string("model_file", ""), max_samples)
+        resume = check_resume_budget(args.parse_string("model_file", ""), args.parse_int("max_samples", NO_LIMIT))
     if base_seed is None:
         base_seed = draw_seed(args)[0]
     mp_util.init(rank, world, device, port)
@@ -121,22 +121,27 @@ def run(
         summary = getattr(env, "tracking_summary", dict)()
         result["tracking"] = test_tracking(summary)
         return result
-    return _train(args, argv, inputs, env_info, agent, base_seed, world)
+    return _train(args, argv, inputs, env_info, agent, base_seed, world, resume)
 
 
-def check_resume_budget(model_file: str, max_samples: int) -> None:
-    """Refuse to resume a checkpoint that already reached `max_samples` (it would train nothing)."""
+def check_resume_budget(model_file: str, max_samples: int) -> dict[str, Any] | None:
+    """Where training resumes from (`model_file`, `iteration`, `samples` of the checkpoint's train
+    state; None for no checkpoint or one without a train state, i.e. a fresh start), after refusing a
+    checkpoint that already reached `max_samples` (it would train nothing)."""
     if not model_file:
-        return
+        return None
     from mimickit.learning import checkpoint
 
     _, train_state = checkpoint.split_train_state(checkpoint.read_checkpoint(model_file))
-    samples = train_state["samples"] if train_state else 0
+    if train_state is None:
+        return None
+    samples = train_state["samples"]
     if samples >= max_samples:
         raise MimicKitError(
             f"{model_file} already has {samples} samples, which reaches --max_samples {max_samples}:"
             " nothing to train (give a larger --max_samples to continue it)"
         )
+    return {"model_file": str(Path(model_file).resolve()), "iteration": train_state["iteration"], "samples": samples}
 
 
 def resolve_inputs(args: ArgParser) -> RunInputs:
@@ -195,21 +200,22 @@ def test_tracking(summary: dict[str, float]) -> dict[str, float]:
 
 
 def _train(
-    args: ArgParser, argv: list[str], inputs: RunInputs, env_info: dict[str, Any], agent: Any, seed: int, world: int
+    args: ArgParser,
+    argv: list[str],
+    inputs: RunInputs,
+    env_info: dict[str, Any],
+    agent: Any,
+    seed: int,
+    world: int,
+    resume: dict[str, Any] | None,
 ) -> int:
     from mimickit.learning import mp_util
 
     max_samples = args.parse_int("max_samples", NO_LIMIT)
-    model_file = args.parse_string("model_file", "")
-    resumed = bool(model_file) and agent.get_iteration() > 0
     folder = RunFolder(Path(args.parse_string("out_dir", "output/")).resolve())
     root = mp_util.is_root_proc()
     if root:
         effective = _effective_values(args, inputs, env_info, agent, folder, max_samples, world)
-        resume = None
-        if resumed:
-            resume = {"model_file": effective["model_file"], "iteration": agent.get_iteration(),
-                      "samples": agent.get_sample_count()}  # fmt: skip
         _start_run_folder(folder, args, argv, inputs, effective, seed, resume)
     signals = _install_stop_handlers(agent)
     try:
@@ -227,7 +233,7 @@ def _train(
             traceback.print_exc()
         print(f"error: {line}", file=sys.stderr, flush=True)
         return ExitCode.FAILED
-    state, reason, code = _end_state(summary, max_samples, signals)
+    state, reason, code = _end_state(summary, max_samples, signals, folder.model_file.is_file())
     if root:
         folder.write_state(state, reason, iteration=summary.iterations, samples=summary.samples)
         if state != EndState.DIVERGED:  # the divergence line is already on the terminal
@@ -235,13 +241,14 @@ def _train(
     return code
 
 
-def _end_state(summary: Any, max_samples: int, signals: list[str]) -> tuple[EndState, str, int]:
+def _end_state(summary: Any, max_samples: int, signals: list[str], saved: bool) -> tuple[EndState, str, int]:
     done = f"iteration {summary.iterations}, {summary.samples} samples"
     if summary.diverged:
         return EndState.DIVERGED, summary.diverged, ExitCode.DIVERGED
     if summary.stopped:
         by = signals[0] if signals else "a stop request"
-        return EndState.STOPPED, f"stopped by {by} at {done}; model.pt saved", ExitCode.OK
+        saved_note = "; model.pt saved" if saved else " (before the first iteration: no model.pt)"
+        return EndState.STOPPED, f"stopped by {by} at {done}{saved_note}", ExitCode.OK
     return EndState.FINISHED, f"reached max_samples {max_samples} at {done}", ExitCode.OK
 
 

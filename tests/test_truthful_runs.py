@@ -166,6 +166,18 @@ def test_learning_rate_1e4_diverges_with_its_reason_and_a_finite_model(tmp_path:
                  "--test_episodes", "2", "--json")  # fmt: skip
     assert r.returncode == 0, r.stderr[-3000:]
 
+    # Continued from model.pt with the arg file's agent config (learning rate 1e-4, not the checkpoint's
+    # optimiser's 1e4), the diverged iteration is re-run and the run finishes.
+    budget = (iteration + 1) * 8 * 32
+    r = mimickit("train", "--arg_file", str(ARG_FILE), "--num_envs", "8", "--out_dir", str(out),
+                 "--model_file", str(out / "model.pt"), "--max_samples", str(budget))  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    state = RunFolder(out).read_state()
+    assert state.state.value == "finished" and state.samples == budget
+    assert [row["iteration"] for row in read_events(out)] == [iteration]
+    assert list(read_log(out)["iteration"]) == list(range(iteration + 1))  # the diverged row is superseded
+    assert np.isfinite(read_log(out)[loss]).all()
+
 
 def test_resume_needs_a_larger_budget_then_continues_with_a_marker_row(baseline: Path, tmp_path: Path) -> None:
     run = tmp_path / "run"

@@ -58,7 +58,13 @@ class MPOptimizer:
         return {"optimizer": self._optimizer.state_dict(), "steps": self._steps}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore the optimiser's running state (momenta, step counts). Its hyperparameters (learning
+        rate, weight decay, ...) stay this config's: torch would take the checkpoint's, so a run resumed
+        with a new agent config (a lower learning rate after a divergence) would silently train with the old."""
+        configured = [{k: v for k, v in group.items() if k != "params"} for group in self._optimizer.param_groups]
         self._optimizer.load_state_dict(state["optimizer"])
+        for group, hyper in zip(self._optimizer.param_groups, configured, strict=True):
+            group.update(hyper)
         self._steps = int(state.get("steps", 0))
 
     def _average_grads(self) -> None:

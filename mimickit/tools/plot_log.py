@@ -105,9 +105,21 @@ def _read_jsonl(p: Path, text: str) -> list[dict]:
 
 
 def _columns(all_rows: list[dict]) -> Columns:
-    rows = [row for row in all_rows if EVENT_KEY not in row]
+    rows = _current_rows(all_rows)
     names = list(dict.fromkeys(k for row in rows for k in row))
     return {n.lower(): np.array([_number(row.get(n)) for row in rows]) for n in names if _is_numeric(rows, n)}
+
+
+def _current_rows(all_rows: list[dict]) -> list[dict]:
+    """The iteration rows, without those a resume superseded: resuming a diverged run from its model.pt
+    re-runs the diverged iteration, so rows before a resume marker from its iteration on are dropped."""
+    rows: list[dict] = []
+    for row in all_rows:
+        if EVENT_KEY not in row:
+            rows.append(row)
+        elif isinstance(row.get("iteration"), int):
+            rows = [r for r in rows if not (isinstance(r.get("iteration"), int) and r["iteration"] >= row["iteration"])]
+    return rows
 
 
 def _is_numeric(rows: list[dict], name: str) -> bool:
