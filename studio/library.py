@@ -204,7 +204,7 @@ def _motion_info(path: Path) -> dict[str, Any]:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # NaN columns are reported, not warned
-            m = read_motion(path, sanitize_nan=False)
+            m = read_motion(path, sanitize_nan=False, in_child=False)  # hundreds of files: see read_motion
     except MimicKitError as e:
         return {"error": one_line(str(e))}
     return {
@@ -253,4 +253,3 @@ def entry_error(path: Path, e: BaseException) -> str:
     if isinstance(e, MimicKitError):
         return one_line(str(e))
     return one_line(f"{path.name}: cannot read it ({type(e).__name__}: {one_line(str(e))})")
-
