@@ -38,14 +38,19 @@ NO_LIMIT = 2**62
 
 
 def parse(argv: list[str]) -> ArgParser:
-    """All arguments; those that are not the stand-in's own go through the real trainer's checks."""
+    """All arguments; those that are not the stand-in's own go through the real trainer's checks.
+    `--model_file` is the exception: the real check reads it as a torch checkpoint, and the stand-in's
+    model.pt is a JSON counter, so only its existence is checked here."""
     args = ArgParser()
     args.load_args(argv)
     real = ArgParser()
     for key in args.all_keys():
-        if key not in FAKE_KEYS:
+        if key not in FAKE_KEYS and key != "model_file":
             real.set(key, *args.parse_strings(key))
     check_run_args(real)
+    model_file = args.parse_string("model_file")
+    if args.has_key("model_file") and not Path(model_file).is_file():
+        raise MimicKitError(f"--model_file: file not found: {model_file}")
     return args
 
 

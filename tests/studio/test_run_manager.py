@@ -11,7 +11,10 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from mimickit.run_folder import EndState, RunFolder
+from mimickit.util.paths import PROJECT_ROOT
 from studio.metrics import last_rows, read_rows
 from studio.registry import Registry, Run, RunStatus
 from studio.runs import RunManager, end_status, train_command
@@ -159,3 +162,19 @@ def test_last_rows_reads_the_tail_of_a_long_file(tmp_path: Path) -> None:
     assert tail[-1]["iteration"] == 999 and all(r["padding"] == row["padding"] for r in tail)
     assert 100 < len(tail) < 1000
     assert last_rows(tmp_path / "missing.jsonl") == []
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [["--num_env", "8"], ["--num_envs", "0"], ["--rand_seed", "soon"], ["--model_file", "/no/such/model.pt"]],
+    ids=["typo", "zero-envs", "seed-not-a-number", "missing-model"],
+)
+def test_the_stand_in_refuses_what_the_trainer_refuses(tmp_path: Path, bad: list[str]) -> None:
+    """Same argv to `mimickit train` and to the stand-in: the same exit code 2 and `error:` line."""
+    argv = ["--arg_file", str(PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt")]
+    argv += ["--out_dir", str(tmp_path / "run"), *bad]
+    real = subprocess.run([sys.executable, "-m", "mimickit.cli", "train", *argv], capture_output=True, text=True)
+    fake = subprocess.run([sys.executable, str(FAKE_TRAINER), *argv], capture_output=True, text=True)
+    assert real.returncode == fake.returncode == 2
+    assert fake.stderr.strip() == real.stderr.strip() and real.stderr.startswith("error: ")
+    assert not (tmp_path / "run").exists()

@@ -258,7 +258,7 @@ def test_continue_a_finished_run_with_a_larger_budget(studio: StudioProcess) -> 
     assert done["summary"]["resumes"] == 1 and done["summary"]["max_samples"] == 5 * per_row
 
 
-def test_the_stand_in_refuses_what_the_trainer_refuses(studio: StudioProcess) -> None:
+def test_a_typo_in_the_arg_file_fails_the_run(studio: StudioProcess) -> None:
     """The fake trainer runs the real trainer's argument checks: a typo ends the run failed, naming it
     (test_launch_fields.py has the same run with the real trainer)."""
     path = write_arg_file(studio.runs_dir, "typo", rows=2, period=0.05)
