@@ -20,6 +20,7 @@ from fastapi.responses import JSONResponse, StreamingResponse
 from fastapi.routing import APIRoute
 from pydantic import BaseModel, Field, model_validator
 
+from mimickit.run_args import MAX_NUM_ENVS, MAX_SEED
 from mimickit.run_folder import RunFolder
 from studio.api import studio_of
 from studio.metrics import follow_rows, read_rows
@@ -57,7 +58,6 @@ def validation_line(errors: Sequence[Any]) -> str:
 
 router = APIRouter(prefix="/runs", tags=["runs"], route_class=OneLineErrors)
 MOTION_SUFFIXES = (".pkl", ".yaml", ".yml")
-MAX_SEED = 2**31 - 1
 
 
 class StrictBody(BaseModel):
@@ -79,7 +79,7 @@ class StrictBody(BaseModel):
 class LaunchRun(StrictBody):
     arg_file: str = Field(description="a MimicKit arg file: `args/x.txt`, `data/args/x.txt` or an absolute path")
     name: str | None = Field(None, max_length=200)
-    num_envs: int | None = Field(None, gt=0)
+    num_envs: int | None = Field(None, gt=0, le=MAX_NUM_ENVS)  # the trainer's bounds
     max_samples: int | None = Field(None, gt=0)
     motion_file: str | None = Field(None, description="a clip (.pkl) or dataset (.yaml) replacing the env config's")
     rand_seed: int | None = Field(None, ge=0, le=MAX_SEED, description="the seed (default: the trainer picks one)")

@@ -214,6 +214,8 @@ def test_unknown_launch_keys_are_refused_by_name(studio: StudioProcess) -> None:
     assert r.status_code == 422 and r.json()["detail"] == "unknown key 'budget'; known keys: max_samples"
     r = studio.post("/api/runs", {"arg_file": "args/short.txt", "rand_seed": -1})
     assert r.status_code == 422 and r.json()["detail"] == "rand_seed: Input should be greater than or equal to 0"
+    r = studio.post("/api/runs", {"arg_file": "args/short.txt", "num_envs": 65_537})
+    assert r.status_code == 422 and r.json()["detail"] == "num_envs: Input should be less than or equal to 65536"
     r = studio.post("/api/runs", {"num_envs": "many"})
     assert r.status_code == 422 and r.json()["detail"].startswith("arg_file: Field required (and 1 more)")
 
