@@ -119,9 +119,9 @@ def load_rollout(body: LoadRollout, request: Request) -> dict[str, Any]:
         k: confine(v, roots) if (v := getattr(body, k)) else None
         for k in ("env_config", "agent_config", "engine_config")
     }
-    check_finite_checkpoint(checkpoint)  # unreadable or diverged (NaN weights): one line, before any build
     try:
         source = source_for_checkpoint(checkpoint, run_id=body.run_id, run_name=run_name, **configs)
+        check_finite_checkpoint(checkpoint)  # unreadable or diverged (NaN weights): one line, before any build
         if source.data_dir is None:
             source.data_dir = s.data_dir
         rp = studio.load_rollout(source, play=body.play)
