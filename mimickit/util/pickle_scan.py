@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import re
 import struct
+from typing import Any
+
+import numpy as np
 
 from mimickit.util.limits import ClipLimits, env_var_for
 
@@ -122,12 +125,8 @@ def scan_pickle(data: bytes, start: int = 0, limits: ClipLimits | None = None) -
     cheap, floats, kinds, costs = _CHEAP_RUN.match, _FLOAT_RUN.match, _KIND, _COST
     while pos < n:
         code = data[pos]
-        if code == _G:  # a row of floats: try the last row's length first, one strided compare
-            after = pos + 9 * run
-            if data[pos:after:9] != b"G" * run or data[after : after + 1] == b"G":
-                run = max(1, (floats(data, pos).end() - pos) // 9)
-            pos += 9 * run
-            est += 40 * run  # a float object, its reference on the stack and in its list
+        if code == _G:
+            pos, est, run = _float_rows(data, pos, est, run, floats)
             continue
         kind = kinds[code]
         if kind == 0:
@@ -151,6 +150,58 @@ def scan_pickle(data: bytes, start: int = 0, limits: ClipLimits | None = None) -
         pos, cost = _special(data, pos, code, kind)
         est += cost
     raise PickleScanError(f"the pickle ends at byte {n} without its STOP opcode (truncated file)")
+
+
+def _float_rows(data: bytes, pos: int, est: int, run: int, floats: Any) -> tuple[int, int, int]:
+    """Rows of BINFLOATs from `pos`, as a clip writes them, in one loop: (position, estimate, row length).
+
+    A run of floats is checked with one strided compare (every 9th byte is `G`), trying the last
+    row's length first. Between rows a clip has APPENDS, EMPTY_LIST, BINPUT or LONG_BINPUT (index
+    below 2**20, as the cheap run admits), MARK: that boundary is checked here too, so a row costs
+    one trip round this loop instead of five round the main one; and once rows of one length are
+    seen, `_uniform_rows` checks the next ones all at once.
+    """
+    row_cost = _OBJ + 16  # the row's list and its MARK
+    try_uniform = True
+    while True:
+        after = pos + 9 * run
+        if data[pos:after:9] != b"G" * run or data[after : after + 1] == b"G":
+            run = max(1, (floats(data, pos).end() - pos) // 9)
+            after = pos + 9 * run
+        est += 40 * run  # a float object, its reference on the stack and in its list
+        pos = after
+        head = data[pos : pos + 9]
+        if head[:3] == b"e]q" and head[4:6] == b"(G":
+            memo = 2
+        elif head[:3] == b"e]r" and head[5:6] <= b"\x0f" and head[6:9] == b"\x00(G":
+            memo = 5
+        else:
+            return pos, est, run
+        pos += 3 + memo
+        est += row_cost + 12 * memo
+        if try_uniform:
+            rows = _uniform_rows(data, pos, run, memo)
+            pos += rows * (9 * run + 3 + memo)
+            est += rows * (40 * run + row_cost + 12 * memo)
+            try_uniform = rows > 0
+
+
+def _uniform_rows(data: bytes, pos: int, width: int, memo: int) -> int:
+    """How many rows from `pos` are exactly `width` BINFLOATs, APPENDS, EMPTY_LIST, a memo put of
+    `memo` bytes (BINPUT, or LONG_BINPUT below 2**20), MARK: checked for all of them at once with
+    numpy (a clip's rows up to its 256th look so, and the ones after)."""
+    stride = 9 * width + 3 + memo
+    count = (len(data) - pos) // stride
+    if count < 16:
+        return 0
+    rows = np.frombuffer(data, np.uint8, count * stride, pos).reshape(count, stride)
+    tail = rows[:, 9 * width :]
+    ok = (rows[:, : 9 * width : 9] == _G).all(axis=1) & (tail[:, 0] == 0x65) & (tail[:, 1] == 0x5D)
+    if memo == 2:
+        ok &= (tail[:, 2] == 0x71) & (tail[:, 4] == 0x28)
+    else:
+        ok &= (tail[:, 2] == _LONG_BINPUT) & (tail[:, 5] <= 0x0F) & (tail[:, 6] == 0) & (tail[:, 7] == 0x28)
+    return count if ok.all() else int(np.argmin(ok))
 
 
 def _special(data: bytes, pos: int, code: int, kind: int) -> tuple[int, int]:
