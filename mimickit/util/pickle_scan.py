@@ -166,7 +166,10 @@ def _float_rows(data: bytes, pos: int, est: int, run: int, floats: Any) -> tuple
     while True:
         after = pos + 9 * run
         if data[pos:after:9] != b"G" * run or data[after : after + 1] == b"G":
-            run = max(1, (floats(data, pos).end() - pos) // 9)
+            found = (floats(data, pos).end() - pos) // 9
+            if found == 0:  # not a float here (a block of rows ended on a broken row): the main loop decides
+                return pos, est, run
+            run = found
             after = pos + 9 * run
         est += 40 * run  # a float object, its reference on the stack and in its list
         pos = after

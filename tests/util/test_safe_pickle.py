@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pickle
+import pickletools
+import random
 import struct
 import tracemalloc
 from collections import OrderedDict
@@ -199,3 +201,39 @@ def test_bad_limit_env_is_one_error(var: str, text: str, needle: str) -> None:
     with pytest.raises(MimicKitError, match=needle) as e:
         ClipLimits.from_env({var: text})
     assert len(str(e.value)) < 120
+
+
+def _genops_end(data: bytes) -> int | None:
+    """Where the standard library's pure-Python opcode walker finds the STOP (None: it fails)."""
+    try:
+        for op, _, pos in pickletools.genops(data):
+            if op.name == "STOP":
+                return pos + 1
+    except Exception:  # noqa: BLE001 - any failure is "not a pickle" for the comparison
+        return None
+    return None
+
+
+def test_scan_agrees_with_pickletools_on_mutated_clips() -> None:
+    """Differential: on clips with corrupted bytes, the scan (fast paths included: float rows,
+    row boundaries, numpy-checked blocks of rows) ends where pickletools ends, or refuses."""
+    rows = [[float(i * 34 + j) for j in range(34)] for i in range(700)]  # BINPUT rows, then LONG_BINPUT rows
+    clips = [pickle.dumps({"loop_mode": 0, "fps": 30, "frames": rows}, protocol=p) for p in (2, 3, 4)]
+    rng = random.Random(5)
+    agreed = 0
+    for _ in range(400):
+        b = bytearray(rng.choice(clips))
+        for _ in range(rng.randint(1, 3)):
+            b[rng.randrange(len(b))] = rng.choice([0x47, 0x65, 0x5D, 0x71, 0x72, 0x28, 0x2E, rng.randrange(256)])
+        data = bytes(b)
+        want = _genops_end(data)
+        try:
+            got = scan_pickle(data, 0, ClipLimits(max_parse_mb=1e6))[0]
+        except PickleScanError:
+            got = None
+        if want is None:
+            assert got is None, "the scan accepted what pickletools cannot walk"
+        else:
+            assert got in (want, None), (got, want)
+            agreed += got == want
+    assert agreed > 100
