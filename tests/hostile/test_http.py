@@ -8,16 +8,20 @@ cases expect the request accepted. A server that crashes fails every case after 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import re
 import shutil
 import socket
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 import torch
 import viser
@@ -613,22 +617,26 @@ def test_err_viser_port_not_reachable_off_loopback(case: str, tok: StudioProcess
         socket.create_connection((ip, viser_port), timeout=5).close()  # ... viser's is not
 
 
-@case("ok-scene-renders-through-the-token-relay")
-def test_ok_scene_renders_through_the_token_relay(case: str, tok: StudioProcess) -> None:
-    """Real Chromium opens the dashboard with its token: the scene's iframe is the relay and draws."""
+@contextlib.contextmanager
+def chromium_page() -> Iterator[Any]:
+    """A page of real Chromium (Playwright, the apt browser); skips where there is none."""
     sync_api = pytest.importorskip("playwright.sync_api")
-    image = pytest.importorskip("PIL.Image")
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium is None:
         pytest.skip("no chromium on PATH")
-    import io
-    import time
-
-    import numpy as np
-
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        page = browser.new_page(viewport={"width": 1200, "height": 800})
+        try:
+            yield browser.new_page(viewport={"width": 1200, "height": 800})
+        finally:
+            browser.close()
+
+
+@case("ok-scene-renders-through-the-token-relay")
+def test_ok_scene_renders_through_the_token_relay(case: str, tok: StudioProcess) -> None:
+    """Real Chromium opens the dashboard with its token: the scene's iframe is the relay and draws."""
+    image = pytest.importorskip("PIL.Image")
+    with chromium_page() as page:
         page.goto(f"{tok.url}?token={TOKEN}")
         page.frame_locator("#scene").locator("canvas").first.wait_for(timeout=60_000)
         assert page.locator("#scene").get_attribute("src").startswith("/scene/")
@@ -636,11 +644,24 @@ def test_ok_scene_renders_through_the_token_relay(case: str, tok: StudioProcess)
         spread = 0.0
         while time.monotonic() < deadline and spread < 10:  # software WebGL: the first frames take a while
             time.sleep(2)
-            png = page.locator("#scene").screenshot()
-            pixels = np.asarray(image.open(io.BytesIO(png)).convert("L"), dtype=np.float32)
-            spread = float(pixels.std())
-        browser.close()
+            box = page.locator("#scene").bounding_box()  # page.screenshot: no wait for a "stable" element
+            png = page.screenshot(clip=box, timeout=60_000)
+            spread = float(np.asarray(image.open(io.BytesIO(png)).convert("L"), dtype=np.float32).std())
     assert spread >= 10, "the scene's canvas stayed blank through the relay"
+
+
+@case("ok-page-shows-a-bad-clip-as-one-line")
+def test_ok_page_shows_a_bad_clip_as_one_line(case: str, srv: StudioProcess) -> None:
+    """The library panel lists the data folder with its bad clips: each one row with its error."""
+    with chromium_page() as page:
+        page.goto(srv.url)
+        page.fill("#filter", "truncated")
+        row = page.locator("#library-list .item.broken")
+        row.wait_for(timeout=30_000)
+        text = row.locator(".meta.error").inner_text()
+        assert "truncated.pkl" in text and "\n" not in text.strip()
+        page.fill("#filter", "good.pkl")
+        page.locator("#library-list .item:not(.broken)").first.wait_for(timeout=10_000)
 
 
 # ------------------------------------------------------------------ crashers (last: they killed the server before)
