@@ -7,6 +7,7 @@ It prints one URL: the dashboard's (with the token, when one is needed).
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 import socket
 import sys
@@ -129,6 +130,9 @@ def serve(args: argparse.Namespace) -> int:
         settings.startup_clip, settings.startup_char = Path(args.clip), args.char and Path(args.char)
     if settings.data_dir is not None and not Path(settings.data_dir).is_dir():
         raise MimicKitError(f"--data-dir {settings.data_dir} is not a folder")
+    if settings.token is not None and not re.fullmatch(r"[A-Za-z0-9._~-]+", settings.token):
+        # It travels in URLs and in the scene's cookie: nothing there may need escaping.
+        raise MimicKitError("--token may hold only letters, digits and . _ ~ - (e.g. one from `openssl rand -hex 16`)")
     if settings.needs_token and not settings.token:
         settings.token = new_token()
     # Bind first, so that --port 0 gets a real port to print and no other process can take it.

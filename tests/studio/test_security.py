@@ -8,7 +8,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from studio.app import create_app
-from studio.security import PathError, confine
+from studio.security import HostPolicy, PathError, confine
 from studio.settings import Settings, is_loopback
 from tests.conftest import DEMO_CLIP
 
@@ -91,3 +91,38 @@ def test_scene_commands_without_a_scene_say_so(tmp_path: Path) -> None:
     with make_client(tmp_path) as client:
         r = client.get("/api/scene/state")
         assert r.status_code == 503 and "3D scene" in r.json()["detail"]
+
+
+@pytest.mark.parametrize(
+    ("bound", "extra", "host", "allowed"),
+    [
+        ("127.0.0.1", [], "127.0.0.1:8000", True),
+        ("127.0.0.1", [], "localhost", True),
+        ("127.0.0.1", [], "[::1]:8000", True),
+        ("127.0.0.1", [], "evil.example:8000", False),
+        ("127.0.0.1", [], "10.0.0.5", False),
+        ("127.0.0.1", ["studio.lan"], "Studio.LAN:8000", True),
+        ("127.0.0.1", ["*"], "anything.example", True),
+        ("0.0.0.0", [], "192.168.1.20:8000", True),  # an IP literal: no DNS name to rebind
+        ("0.0.0.0", [], "evil.example", False),
+        ("192.168.1.5", [], "192.168.1.5:80", True),
+        ("192.168.1.5", [], "127.0.0.1", False),
+    ],
+)
+def test_host_policy(bound: str, extra: list[str], host: str, allowed: bool) -> None:
+    assert HostPolicy(bound, extra).allows(host) is allowed
+
+
+def test_allowed_hosts_reach_the_app(tmp_path: Path) -> None:
+    settings = Settings(runs_dir=tmp_path / "runs", start_viser=False, allowed_hosts=["studio.lan"])
+    with TestClient(create_app(settings), base_url="http://studio.lan:8000") as client:
+        assert client.get("/api/health").status_code == 200
+        r = client.get("/api/health", headers={"Host": "other.lan"})
+        assert r.status_code == 403 and "studio.lan" in r.json()["detail"]
+
+
+def test_cli_refuses_a_token_that_needs_escaping(capsys: pytest.CaptureFixture[str]) -> None:
+    from studio.cli import main
+
+    assert main(["serve", "--host", "0.0.0.0", "--token", "a;b c", "--port", "0", "--clip", "none"]) == 2
+    assert "--token may hold only" in capsys.readouterr().err
