@@ -167,7 +167,7 @@ def _float_rows(data: bytes, pos: int, est: int, run: int, floats: Any) -> tuple
         after = pos + 9 * run
         if data[pos:after:9] != b"G" * run or data[after : after + 1] == b"G":
             found = (floats(data, pos).end() - pos) // 9
-            if found == 0 and data[pos] == _G:
+            if found == 0 and data[pos : pos + 1] == b"G":
                 raise PickleScanError(f"opcode 0x47 at byte {pos} is cut off (truncated file)")
             if found == 0:  # not a float here (a block of rows ended on a broken row): the main loop decides
                 return pos, est, run
