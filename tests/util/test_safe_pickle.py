@@ -203,12 +203,15 @@ def test_bad_limit_env_is_one_error(var: str, text: str, needle: str) -> None:
     assert len(str(e.value)) < 120
 
 
-def _genops_end(data: bytes) -> int | None:
-    """Where the standard library's pure-Python opcode walker finds the STOP (None: it fails)."""
+def _genops_end(data: bytes) -> int | None | str:
+    """Where the standard library's pure-Python opcode walker finds the STOP (None: it fails;
+    "text": an argument is not valid text, which the scan leaves to the unpickler to refuse)."""
     try:
         for op, _, pos in pickletools.genops(data):
             if op.name == "STOP":
                 return pos + 1
+    except UnicodeDecodeError:
+        return "text"
     except Exception:  # noqa: BLE001 - any failure is "not a pickle" for the comparison
         return None
     return None
@@ -229,6 +232,8 @@ def test_scan_agrees_with_pickletools_on_mutated_clips() -> None:
             del b[rng.randrange(len(b)) :]
         data = bytes(b)
         want = _genops_end(data)
+        if want == "text":
+            continue
         try:
             got = scan_pickle(data, 0, ClipLimits(max_parse_mb=1e6))[0]
         except PickleScanError:
