@@ -365,6 +365,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = ArgParser()
         args.load_args(argv)
+        check_run_args(args)  # before any worker process is spawned: one line, nothing started
         devices = args.parse_strings("devices") or default_devices()
         world = len(devices)
         port = args.parse_int("master_port", 0) or free_port()
