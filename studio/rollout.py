@@ -16,7 +16,6 @@ end and goes on simulating; step at the live end simulates one more step.
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 import warnings
@@ -30,6 +29,7 @@ import mujoco
 import numpy as np
 import torch
 
+from mimickit.run_folder import RunFolder
 from mimickit.util.errors import MimicKitError
 from studio.checkpoints import configs_beside, data_dir_for_build
 from studio.scene import StudioScene
@@ -93,15 +93,16 @@ def source_for_checkpoint(
 
 
 def run_data_dir(run_dir: Path) -> Path | None:
-    """`--data_dir` of the run, from the args.json the trainer wrote."""
-    try:
-        args = json.loads((run_dir / "args.json").read_text())
-    except (OSError, ValueError):
+    """`--data_dir` of the run, from the args.json the trainer wrote: its effective value (resolved
+    against the trainer's working folder), or the top-level list of older run folders."""
+    record = RunFolder(run_dir).read_args()
+    if record is None:
         return None
-    value = args.get("data_dir") if isinstance(args, dict) else None
+    effective = record.get("effective")
+    value = effective.get("data_dir") if isinstance(effective, dict) else record.get("data_dir")
     if isinstance(value, list):
         value = value[0] if value else None
-    return Path(value) if value else None
+    return Path(value) if isinstance(value, str) and value else None
 
 
 @dataclass(slots=True)

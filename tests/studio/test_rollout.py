@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -14,6 +16,7 @@ import pytest
 import torch
 
 from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import PROJECT_ROOT
 from studio.checkpoints import agent_type, check_fit_char, check_fit_env, fit_message, inspect_checkpoint
 from studio.rollout import Rollout, RolloutPlayer, source_for_checkpoint
 from tests.conftest import PROJECT_HUMANOID
@@ -53,6 +56,16 @@ def test_source_reads_the_run_folder(ckpt: Path, tmp_path: Path) -> None:
         source_for_checkpoint(lone)
     given = source_for_checkpoint(lone, env_config=ENV_YAML, agent_config=src.agent_config)
     assert given.env_config == ENV_YAML
+
+
+def test_source_takes_the_data_dir_of_a_cli_run(tmp_path: Path, test_data: Path) -> None:
+    """A run trained from the CLI with --data_dir rolls out with that folder, read from its args.json."""
+    out = tmp_path / "run"
+    argv = ["--arg_file", str(PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"), "--num_envs", "2"]
+    argv += ["--max_samples", "2", "--out_dir", str(out), "--data_dir", str(test_data), "--rand_seed", "1"]
+    done = subprocess.run([sys.executable, "-m", "mimickit.cli", "train", *argv], cwd=tmp_path, capture_output=True)
+    assert done.returncode == 0, done.stderr.decode()[-2000:]
+    assert source_for_checkpoint(out / "model.pt").data_dir == test_data.resolve()
 
 
 def test_rollout_steps_records_and_resets(rollout: Rollout) -> None:
