@@ -25,12 +25,13 @@ from typing import Any
 import torch
 
 from mimickit.learning.checkpoint import nonfinite_tensors, read_checkpoint
+from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, set_data_dir
 
 TRAIN_STATE_KEY = "_train_state"
-CONFIG_FILES = ("env_config.yaml", "engine_config.yaml", "agent_config.yaml")
+CONFIG_FILES = (ENV_CONFIG_FILE, ENGINE_CONFIG_FILE, AGENT_CONFIG_FILE)
 
 # `set_data_dir` is process-wide: builds that resolve `data/...` paths take turns.
 _DATA_DIR_LOCK = threading.RLock()
@@ -202,7 +203,7 @@ def configs_beside(path: Path) -> dict[str, str]:
     those a shipped model's arg file names (`models/x_model.pt` beside `models/x_model.txt`)."""
     for folder in (path.parent, path.parent.parent):
         found = {name: str(folder / name) for name in CONFIG_FILES if (folder / name).is_file()}
-        if "env_config.yaml" in found:
+        if ENV_CONFIG_FILE in found:
             return found
     sidecar = path.with_suffix(".txt")
     return configs_from_arg_file(sidecar, data_dir=path.parent.parent) if sidecar.is_file() else {}
@@ -225,7 +226,7 @@ def configs_from_arg_file(arg_file: Path, data_dir: Path) -> dict[str, str]:
         if hit is None:
             raise MimicKitError(f"{arg_file}: --{name.removesuffix('.yaml')} {value}: file not found")
         found[name] = str(hit)
-    return found if "env_config.yaml" in found else {}
+    return found if ENV_CONFIG_FILE in found else {}
 
 
 # ------------------------------------------------------------------------------------------ fitting

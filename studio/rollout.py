@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 import torch
 
-from mimickit.run_folder import RunFolder
+from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, RunFolder
 from mimickit.util.errors import MimicKitError
 from studio.checkpoints import configs_beside, data_dir_for_build
 from studio.scene import StudioScene
@@ -78,9 +78,9 @@ def source_for_checkpoint(
     """The configs a trainer copied beside `checkpoint` (its folder, or the parent of `int_models/`),
     unless given; MimicKitError when there are none."""
     beside = configs_beside(checkpoint)
-    env = env_config or (Path(beside["env_config.yaml"]) if "env_config.yaml" in beside else None)
-    agent = agent_config or (Path(beside["agent_config.yaml"]) if "agent_config.yaml" in beside else None)
-    engine = engine_config or (Path(beside["engine_config.yaml"]) if "engine_config.yaml" in beside else None)
+    env = env_config or (Path(beside[ENV_CONFIG_FILE]) if ENV_CONFIG_FILE in beside else None)
+    agent = agent_config or (Path(beside[AGENT_CONFIG_FILE]) if AGENT_CONFIG_FILE in beside else None)
+    engine = engine_config or (Path(beside[ENGINE_CONFIG_FILE]) if ENGINE_CONFIG_FILE in beside else None)
     if env is None or agent is None:
         missing = " and ".join(n for n, v in (("env_config", env), ("agent_config", agent)) if v is None)
         raise MimicKitError(
@@ -88,7 +88,7 @@ def source_for_checkpoint(
             f" name the {missing} to roll it out"
         )
     if data_dir is None and beside:
-        data_dir = run_data_dir(Path(beside["env_config.yaml"]).parent)
+        data_dir = run_data_dir(Path(beside[ENV_CONFIG_FILE]).parent)
     return RolloutSource(checkpoint, env, agent, engine, data_dir, run_id, run_name)
 
 

@@ -10,6 +10,7 @@ from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
 
+from mimickit.run_folder import ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, INT_MODELS_DIR
 from mimickit.util.errors import MimicKitError
 from studio.api import studio_of
 from studio.checkpoints import check_fit_char, check_fit_env, configs_beside, inspect_checkpoint
@@ -29,7 +30,7 @@ def list_checkpoints(request: Request) -> list[dict[str, Any]]:
     runs_by_dir = {str(Path(r.out_dir).resolve()): r for r in studio.registry.list() if r.out_dir}
     found: list[Path] = []
     if s.runs_dir.is_dir():
-        for pattern in ("*/*.pt", "*/int_models/*.pt"):
+        for pattern in ("*/*.pt", f"*/{INT_MODELS_DIR}/*.pt"):
             found += s.runs_dir.glob(pattern)
     for d in s.data_dirs:
         if (d / "models").is_dir():
@@ -40,7 +41,7 @@ def list_checkpoints(request: Request) -> list[dict[str, Any]]:
             st = f.stat()
         except OSError:
             continue
-        run_dir = f.parent.parent if f.parent.name == "int_models" else f.parent
+        run_dir = f.parent.parent if f.parent.name == INT_MODELS_DIR else f.parent
         run = runs_by_dir.get(str(run_dir.resolve()))
         out.append({
             "path": display_path(f, s.data_dirs),
@@ -79,9 +80,9 @@ def inspect(
     try:
         if env_file is not None:
             beside = configs_beside(ckpt)
-            if engine is None and "engine_config.yaml" in beside:
-                engine = Path(beside["engine_config.yaml"])
-            data_dir = (run_data_dir(Path(beside["env_config.yaml"]).parent) if beside else None) or s.data_dir
+            if engine is None and ENGINE_CONFIG_FILE in beside:
+                engine = Path(beside[ENGINE_CONFIG_FILE])
+            data_dir = (run_data_dir(Path(beside[ENV_CONFIG_FILE]).parent) if beside else None) or s.data_dir
             fit = check_fit_env(ckpt, env_file, engine, data_dir, env_config)
         elif char_file is not None:
             fit = check_fit_char(ckpt, char_file, char)
