@@ -13,11 +13,12 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from mimickit.run_folder import ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, INT_MODELS_DIR
 from mimickit.util.errors import MimicKitError
 from studio.api import studio_of
+from studio.api.bodies import OneLineErrors
 from studio.checkpoints import check_fit_char, check_fit_env, configs_beside, inspect_checkpoint
 from studio.rollout import run_data_dir
 from studio.security import confine, display_path
 
-router = APIRouter(prefix="/checkpoints", tags=["checkpoints"])
+router = APIRouter(prefix="/checkpoints", tags=["checkpoints"], route_class=OneLineErrors)
 MAX_LISTED = 500
 
 

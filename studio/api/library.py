@@ -10,9 +10,10 @@ from fastapi.responses import JSONResponse
 
 from mimickit.util.paths import atomic_write_bytes
 from studio.api import studio_of
+from studio.api.bodies import OneLineErrors
 from studio.parsing import read_motion_bytes, run_blocking
 
-router = APIRouter(tags=["library"])
+router = APIRouter(tags=["library"], route_class=OneLineErrors)
 
 
 @router.get("/health")

@@ -7,73 +7,28 @@ runs folder's), `data/...` (each data folder in turn), or absolute inside the al
 
 from __future__ import annotations
 
-import difflib
 import json
 import time
-from collections.abc import AsyncIterator, Callable, Coroutine, Sequence
+from collections.abc import AsyncIterator
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 from fastapi import APIRouter, Header, Query, Request, Response
-from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, StreamingResponse
-from fastapi.routing import APIRoute
-from pydantic import BaseModel, Field, model_validator
+from fastapi.responses import StreamingResponse
+from pydantic import Field
 
 from mimickit.run_args import MAX_NUM_ENVS, MAX_SEED
 from mimickit.run_folder import RunFolder
 from studio.api import studio_of
+from studio.api.bodies import OneLineErrors, StrictBody
 from studio.metrics import follow_rows, read_rows
 from studio.registry import Run
 from studio.run_summary import run_summary
 from studio.security import PathError, confine
 from studio.settings import Settings
 
-
-class OneLineErrors(APIRoute):
-    """A request these routes cannot validate gets a 422 with one line naming the field, not pydantic's list."""
-
-    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
-        handler = super().get_route_handler()
-
-        async def route(request: Request) -> Response:
-            try:
-                return await handler(request)
-            except RequestValidationError as e:
-                return JSONResponse({"detail": validation_line(e.errors())}, status_code=422)
-
-        return route
-
-
-def validation_line(errors: Sequence[Any]) -> str:
-    """`field: message` of the first problem (and how many more there are)."""
-    if not errors:
-        return "invalid request"
-    first = errors[0]
-    loc = [str(p) for p in first.get("loc", ()) if p != "body"]
-    msg = str(first.get("msg", "invalid value")).removeprefix("Value error, ")
-    line = f"{'.'.join(loc)}: {msg}" if loc else msg
-    return line + (f" (and {len(errors) - 1} more)" if len(errors) > 1 else "")
-
-
 router = APIRouter(prefix="/runs", tags=["runs"], route_class=OneLineErrors)
 MOTION_SUFFIXES = (".pkl", ".yaml", ".yml")
-
-
-class StrictBody(BaseModel):
-    """A request body whose unknown keys are refused by name (with the nearest known one)."""
-
-    @model_validator(mode="before")
-    @classmethod
-    def _known_keys(cls, data: Any) -> Any:
-        if isinstance(data, dict):
-            known = list(cls.model_fields)
-            for key in data:
-                if key not in known:
-                    near = difflib.get_close_matches(str(key), known, n=1)
-                    hint = f"; did you mean {near[0]!r}?" if near else f"; known keys: {', '.join(known)}"
-                    raise ValueError(f"unknown key {key!r}{hint}")
-        return data
 
 
 class LaunchRun(StrictBody):

@@ -10,10 +10,11 @@ from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse
-from pydantic import BaseModel, Field
+from pydantic import Field
 
 from mimickit.util.errors import MimicKitError
 from studio.api import need, studio_of
+from studio.api.bodies import OneLineErrors, StrictBody
 from studio.checkpoints import check_finite_checkpoint
 from studio.clip_pose import pose_clip
 from studio.player import Player
@@ -21,16 +22,16 @@ from studio.rollout import RolloutPlayer, source_for_checkpoint
 from studio.runs import CHECKPOINT
 from studio.security import confine
 
-router = APIRouter(prefix="/scene", tags=["scene"])
+router = APIRouter(prefix="/scene", tags=["scene"], route_class=OneLineErrors)
 
 
-class LoadClip(BaseModel):
+class LoadClip(StrictBody):
     path: str = Field(description="a clip: `data/motions/...` or a path inside the data/runs folders")
     char: str | None = Field(None, description="an MJCF character; guessed from the clip's frame width if absent")
     play: bool = Field(False, description="start playing at once")
 
 
-class LoadRollout(BaseModel):
+class LoadRollout(StrictBody):
     run_id: int | None = Field(None, description="a run: its `model.pt` and the configs copied into its folder")
     checkpoint: str | None = Field(None, description="a checkpoint file inside the data or runs folders")
     env_config: str | None = Field(None, description="env yaml, when the checkpoint has none beside it")
@@ -39,22 +40,22 @@ class LoadRollout(BaseModel):
     play: bool = Field(True, description="start stepping at once")
 
 
-class ExportReplay(BaseModel):
+class ExportReplay(StrictBody):
     path: str | None = Field(None, description="a clip to export; default: what the scene shows (clip or rollout)")
     char: str | None = Field(None, description="the clip's MJCF character; guessed from its frame width if absent")
     follow: bool = Field(True, description="the world moves with the character (as the player's follow)")
 
 
-class Step(BaseModel):
+class Step(StrictBody):
     frames: int = 1
 
 
-class Seek(BaseModel):
+class Seek(StrictBody):
     frame: int | None = None
     time: float | None = Field(None, description="seconds; used when `frame` is absent")
 
 
-class Configure(BaseModel):
+class Configure(StrictBody):
     speed: float | None = None
     loop: bool | None = None
     follow: bool | None = Field(None, description="camera follows the character")

@@ -436,6 +436,32 @@ def test_err_load_clip_malformed_json(case: str, srv: StudioProcess) -> None:
     assert r.status_code == 422
 
 
+BAD_BODIES = [
+    pytest.param("/api/scene/step", {"frame": 2}, "did you mean 'frames'?", id="err-scene-step-typo"),
+    pytest.param("/api/scene/configure", {"sped": 2.0}, "did you mean 'speed'?", id="err-configure-typo"),
+    pytest.param("/api/scene/configure", {"speed": "fast"}, "speed:", id="err-configure-speed-not-a-number"),
+    pytest.param("/api/scene/seek", {"frame": "x"}, "frame:", id="err-seek-frame-not-an-integer"),
+    pytest.param("/api/scene/load_clip", {"pth": "x.pkl"}, "unknown key 'pth'", id="err-load-clip-typo"),
+    pytest.param("/api/scene/load_rollout", {"run": 1}, "unknown key 'run'", id="err-load-rollout-typo"),
+    pytest.param("/api/scene/export_replay", {"folow": True}, "unknown key 'folow'", id="err-export-replay-typo"),
+]
+
+
+@pytest.mark.parametrize(("path", "body", "says"), BAD_BODIES)
+def test_a_bad_scene_body_is_one_line(srv: StudioProcess, path: str, body: dict, says: str) -> None:
+    """Scene commands refuse unknown keys and wrong types by name, in one line (not pydantic's list)."""
+    r = srv.post(path, body)
+    assert r.status_code == 422, r.text
+    assert says in one_line(r)
+
+
+@case("err-checkpoints-inspect-without-path")
+def test_err_inspect_without_a_path_is_one_line(case: str, srv: StudioProcess) -> None:
+    r = srv.client.get("/api/checkpoints/inspect")
+    assert r.status_code == 422
+    assert "path" in one_line(r)
+
+
 # ------------------------------------------------------------------ replays
 @case("err-replay-symlink-out-of-the-folder")
 def test_err_replay_symlink_out_of_the_folder(case: str, srv: StudioProcess, tmp_path: Path) -> None:
