@@ -15,9 +15,9 @@ import threading
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from mimickit.run_folder import RunFolder, is_event_row
+from mimickit.util.config import load_yaml
+from mimickit.util.errors import MimicKitError
 from studio.metrics import last_rows
 
 NO_BUDGET = 2**62  # a max_samples at least this large is the trainer's "no limit"
@@ -76,9 +76,9 @@ def _from_args(folder: RunFolder) -> dict[str, Any]:
 
 
 def _from_env_config(folder: RunFolder) -> dict[str, Any]:
-    try:
-        config = yaml.safe_load(folder.config_file("env").read_text())
-    except (OSError, yaml.YAMLError):
+    try:  # the bounded loader: a run folder's yaml is read as hostile as any other
+        config = load_yaml(folder.config_file("env"))
+    except MimicKitError:
         config = None
     env = config.get("env") if isinstance(config, dict) else None
     env = env if isinstance(env, dict) else {}

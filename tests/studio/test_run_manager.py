@@ -17,6 +17,7 @@ from mimickit.run_folder import EndState, RunFolder
 from mimickit.util.paths import PROJECT_ROOT
 from studio.metrics import last_rows, read_rows
 from studio.registry import Registry, Run, RunStatus
+from studio.run_summary import run_summary
 from studio.runs import RunManager, end_status, train_command
 from studio.settings import Settings
 from tests.studio.conftest import FAKE_TRAINER, wait_for, write_arg_file
@@ -178,3 +179,12 @@ def test_the_stand_in_refuses_what_the_trainer_refuses(tmp_path: Path, bad: list
     assert real.returncode == fake.returncode == 2
     assert fake.stderr.strip() == real.stderr.strip() and real.stderr.startswith("error: ")
     assert not (tmp_path / "run").exists()
+
+
+def test_summary_reads_the_env_config_through_the_bounded_loader(tmp_path: Path) -> None:
+    """A run folder's yaml is hostile input too: one over the yaml size limit is not parsed."""
+    folder = RunFolder(tmp_path)
+    folder.config_file("env").write_text("env:\n  motion_file: clip.pkl\n" + "#" * (9 << 20) + "\n")
+    assert run_summary(tmp_path)["motion_file"] is None
+    folder.config_file("env").write_text("env:\n  motion_file: other.pkl\n")
+    assert run_summary(tmp_path)["motion_file"] == "other.pkl"
