@@ -93,12 +93,9 @@ def run(
     from mimickit.learning.agent_builder import build_agent
 
     args = ArgParser()
-    args.load_args(argv)
-    check_run_args(args)  # unknown keys and bad values: one line before anything starts
+    args.load_args(argv)  # checked by main() (check_run_args) before any process started
     set_data_dir(args.parse_string("data_dir", "") or None)
     mode = args.parse_string("mode", "train")
-    if mode not in ("train", "test"):
-        raise MimicKitError(f"--mode must be train or test, got {mode!r}")
     inputs = resolve_inputs(args)
     resume = None
     if mode == "train":
@@ -365,7 +362,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = ArgParser()
         args.load_args(argv)
-        check_run_args(args)  # before any worker process is spawned: one line, nothing started
+        check_run_args(args)  # unknown keys and bad values: one line before any process or file exists
         devices = args.parse_strings("devices") or default_devices()
         world = len(devices)
         port = args.parse_int("master_port", 0) or free_port()

@@ -1,11 +1,10 @@
 """Reading user files for the studio: never on the event loop, and clips with a time and memory budget.
 
 A clip (`.pkl`) is untrusted: a crafted one can take seconds of CPU or gigabytes of memory inside
-C code that holds the GIL (a worker thread would stall every request just the same) or, before the
-loader was hardened, crash the process. So clips are read through `mimickit.anim.motion`'s guarded
-loader (a child process with a time and memory budget) when it is there, and in-process otherwise;
-either way the call runs in a worker thread (`run_blocking`), so the event loop keeps answering.
-The library's scan of the data folders parses in-process (see `read_motion`).
+C code that holds the GIL (a worker thread would stall every request just the same). So clips are
+read through `mimickit.anim.motion`'s guarded loader (a child process with a time and memory budget),
+called from a worker thread (`starlette.concurrency.run_in_threadpool` in async endpoints), so the
+event loop keeps answering. The library's scan of the data folders parses in-process (see `read_motion`).
 
 Everything else the studio parses for a request (a character's MJCF, a checkpoint, a config build)
 is a plain blocking call in a sync endpoint, which FastAPI already runs in its thread pool.
@@ -14,18 +13,16 @@ is a plain blocking call in a sync endpoint, which FastAPI already runs in its t
 from __future__ import annotations
 
 import contextlib
-import functools
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, TypeVar
 
-import anyio.to_thread
-
-from mimickit.anim import motion as motion_module
-from mimickit.anim.motion import Motion
+from mimickit.anim.motion import (
+    Motion,
+    load_motion,
+    load_motion_guarded,
+    motion_from_bytes_guarded,
+)
 from mimickit.util.errors import MimicKitError
-
-T = TypeVar("T")
 
 
 def read_motion(path: Path, *, sanitize_nan: bool = True, in_child: bool = True) -> Motion:
@@ -35,20 +32,15 @@ def read_motion(path: Path, *, sanitize_nan: bool = True, in_child: bool = True)
     frame, width and value counts checked before anything is converted): for the library's scan of
     the data folders, where a child per file would cost ~0.05-0.5 s times hundreds of clips. The
     scan runs in a background thread, never on the event loop."""
-    guarded = getattr(motion_module, "load_motion_guarded", None) if in_child else None
+    load = load_motion_guarded if in_child else load_motion
     with _one_line(str(path)):
-        if guarded is not None:
-            return guarded(path, sanitize_nan=sanitize_nan)
-        return motion_module.load_motion(path, sanitize_nan=sanitize_nan)
+        return load(path, sanitize_nan=sanitize_nan)
 
 
 def read_motion_bytes(data: bytes, *, source: str, sanitize_nan: bool = True) -> Motion:
-    """The clip `data` holds (an upload), read as `read_motion` reads a file."""
-    guarded = getattr(motion_module, "motion_from_bytes_guarded", None)
+    """The clip `data` holds (an upload), read in the guarded child as `read_motion` reads a file."""
     with _one_line(source):
-        if guarded is not None:
-            return guarded(data, source=source, sanitize_nan=sanitize_nan)
-        return motion_module.motion_from_bytes(data, source=source, sanitize_nan=sanitize_nan)
+        return motion_from_bytes_guarded(data, source=source, sanitize_nan=sanitize_nan)
 
 
 @contextlib.contextmanager
@@ -62,8 +54,3 @@ def _one_line(source: str) -> Iterator[None]:
     except Exception as e:  # noqa: BLE001 - untrusted input: every failure is the same user error
         first = (str(e).strip().splitlines() or [""])[0][:200]
         raise MimicKitError(f"{source}: not a MimicKit clip ({type(e).__name__}: {first})") from None
-
-
-async def run_blocking(fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
-    """`fn(*args, **kwargs)` in a worker thread, awaited from an async endpoint."""
-    return await anyio.to_thread.run_sync(functools.partial(fn, *args, **kwargs))

@@ -7,11 +7,12 @@ from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
 
 from mimickit.util.paths import atomic_write_bytes
 from studio.api import studio_of
 from studio.api.bodies import OneLineErrors
-from studio.parsing import read_motion_bytes, run_blocking
+from studio.parsing import read_motion_bytes
 
 router = APIRouter(tags=["library"], route_class=OneLineErrors)
 
@@ -70,7 +71,7 @@ async def upload_motion(
             raise HTTPException(413, f"a clip may be at most {limit} bytes")
     # Parsed in a worker thread (a child process with a budget, when the guarded loader is there):
     # a hostile clip must not stall the other requests.
-    motion = await run_blocking(read_motion_bytes, bytes(body), source=upload_stem(filename) + ".pkl")
+    motion = await run_in_threadpool(read_motion_bytes, bytes(body), source=upload_stem(filename) + ".pkl")
     folder = studio.settings.uploads_dir
     stem = upload_stem(filename)
     target = folder / f"{stem}.pkl"
