@@ -16,6 +16,8 @@ from pathlib import Path
 
 from mimickit.util.errors import MimicKitError
 
+DEFAULT_BENCH_AGENT = "data/agents/deepmimic_humanoid_ppo_cpu_agent.yaml"
+
 
 def _motion_info(args: argparse.Namespace) -> int:
     from mimickit.tools.motion_report import format_info, motion_info
@@ -96,14 +98,35 @@ def _bench(args: argparse.Namespace) -> int:
     from mimickit.util.paths import set_data_dir
 
     set_data_dir(args.data_dir)
-    results = [
-        run_bench(args.engine_config, args.env_config, n, args.steps, rounds=args.rounds, raw_mode=args.raw)
-        for n in args.num_envs
-    ]
+    if args.train:
+        if args.steps is not None or args.raw is not None:
+            raise MimicKitError("--steps and --raw time the env alone: --train times one iteration per round")
+        from mimickit.tools.train_bench import format_train_bench, run_train_bench
+
+        results = [
+            run_train_bench(args.engine_config, args.env_config, args.agent_config, n, rounds=args.rounds)
+            for n in args.num_envs
+        ]
+        fmt = format_train_bench
+    else:
+        if args.agent_config != DEFAULT_BENCH_AGENT:
+            raise MimicKitError("--agent_config is read only with --train")
+        results = [
+            run_bench(
+                args.engine_config,
+                args.env_config,
+                n,
+                args.steps or 100,
+                rounds=args.rounds,
+                raw_mode=args.raw or "free",
+            )
+            for n in args.num_envs
+        ]
+        fmt = format_bench
     if args.json:
         print(json.dumps(results[0] if len(results) == 1 else results))
     else:
-        print("\n".join(format_bench(r) for r in results))
+        print("\n".join(fmt(r) for r in results))
     return 0
 
 
@@ -208,17 +231,23 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--engine_config", default="data/engines/mujoco_engine.yaml")
     bench.add_argument("--env_config", default="data/envs/deepmimic_humanoid_env.yaml")
     bench.add_argument("--num_envs", type=int, nargs="+", default=[256], help="one or more env counts")
-    bench.add_argument("--steps", type=int, default=100, help="control steps measured per env count")
+    bench.add_argument("--steps", type=int, help="control steps measured per env count (default 100)")
     bench.add_argument(
         "--rounds", type=int, default=5, help="env and raw measurements alternate this many times (noisy machines)"
     )
     bench.add_argument(
         "--raw",
         choices=["free", "replay"],
-        default="free",
         help="raw baseline: rollout on its own copies of the states with zero controls (free), or re-running each "
-        "timed env step from the same state, warm start and controls (replay)",
+        "timed env step from the same state, warm start and controls (replay); default free",
     )
+    bench.add_argument(
+        "--train",
+        action="store_true",
+        help="alternate env-only rounds (random actions) with full training iterations of --agent_config: "
+        "train_ratio and where training's time goes (--steps and --raw do not apply)",
+    )
+    bench.add_argument("--agent_config", default=DEFAULT_BENCH_AGENT, help="the agent --train times")
     bench.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
     bench.add_argument("--json", action="store_true", help="print JSON (one object, or a list for several counts)")
     bench.set_defaults(func=_bench)

@@ -46,6 +46,7 @@ from mimickit.learning.normalizer import Normalizer
 from mimickit.learning.return_tracker import ReturnTracker
 from mimickit.run_folder import INT_MODELS_DIR, MODEL_FILE, int_model_name, resume_row
 from mimickit.util.errors import MimicKitError
+from mimickit.util.threads import torch_threads
 
 _OBS_CLIP = 10.0
 
@@ -79,6 +80,20 @@ class TrainSummary:
     model_file: Path
     diverged: str = ""
     """The reason line when the divergence guard ended training (`diverged at iteration N: ...`)."""
+
+
+@dataclass
+class IterationStep:
+    """What one `train_iteration` did."""
+
+    info: dict[str, float]
+    """The iteration's losses and statistics (the metrics row's training columns)."""
+    non_finite: str | None
+    """The divergence reason (`critic loss is nan`), the same on every process; None when all was finite."""
+    before: dict[str, Any]
+    """The agent's state before the iteration (weights, optimisers, samples), to roll a divergence back."""
+    timing: dict[str, float]
+    """Seconds in `time.sim_s`, `time.inference_s`, `time.update_s`, and `time.samples_per_s`."""
 
 
 class BaseAgent(nn.Module, abc.ABC):
@@ -138,8 +153,7 @@ class BaseAgent(nn.Module, abc.ABC):
         logger = Logger(
             out_dir, logger_type, append=resumed, max_samples=max_samples, run_config=self.config.model_dump()
         )
-        self._curr_obs, self._curr_info = self._reset_envs()
-        self._init_train()
+        self.start_training()
         self._train_start = time.time()
         if resumed:
             logger.print(f"Resuming at iteration {self._iter}, {self._sample_count} samples")
@@ -149,12 +163,10 @@ class BaseAgent(nn.Module, abc.ABC):
         diverged = ""
         try:
             while self._sample_count < max_samples and not self._sync_stop_flag():
-                before = self._snapshot()
-                train_info = self._train_iter()
-                if train_info is None:  # stopped mid-rollout: the partial iteration is discarded
+                step = self.train_iteration()
+                if step is None:  # stopped mid-rollout: the partial iteration is discarded
                     break
-                self._sample_count = self._sample_offset + mp_util.reduce_sum(self._exp_buffer.get_total_samples())
-                non_finite = self._sync_non_finite()
+                train_info, non_finite = step.info, step.non_finite
                 output = not non_finite and (
                     self._iter % self.config.iters_per_output == 0 or self._sample_count >= max_samples
                 )
@@ -169,7 +181,7 @@ class BaseAgent(nn.Module, abc.ABC):
                     diverged = f"diverged at iteration {self._iter}: {non_finite}"
                     logger.print(diverged)
                     logger.write_note(diverged)
-                    self._roll_back(before)
+                    self._roll_back(step.before)
                     if saved_iter != self._iter - 1:  # else model.pt already holds these weights
                         self._write_checkpoint(model_file, self._iter)
                     break
@@ -186,6 +198,22 @@ class BaseAgent(nn.Module, abc.ABC):
             logger.close()
         return TrainSummary(self._iter, self._sample_count, stopped, model_file, diverged)
 
+    def start_training(self) -> None:
+        """Fresh episodes in every env and the counters a run starts from (a resumed run keeps its own).
+        `train_model` begins with it; `mimickit bench --train` calls it before each timed iteration."""
+        self._curr_obs, self._curr_info = self._reset_envs()
+        self._init_train()
+
+    def train_iteration(self) -> IterationStep | None:
+        """One training iteration, everything but logging and output: rollout, targets, updates, the global
+        sample count and the divergence check. None when a stop request cut the rollout short."""
+        before = self._snapshot()
+        train_info = self._train_iter()
+        if train_info is None:
+            return None
+        self._sample_count = self._sample_offset + mp_util.reduce_sum(self._exp_buffer.get_total_samples())
+        return IterationStep(train_info, self._sync_non_finite(), before, dict(self._iter_timing))
+
     def test_model(self, num_episodes: int) -> EpisodeStats:
         """Run the deterministic policy (actor mean) until each env has finished at least
         ceil(ceil(num_episodes / procs) / num_envs) episodes; every finished episode counts.
@@ -194,7 +222,7 @@ class BaseAgent(nn.Module, abc.ABC):
         self.eval()
         self.set_mode(AgentMode.TEST)
         num_eps_proc = -(-num_episodes // mp_util.get_num_procs())
-        with torch.no_grad():
+        with torch.no_grad(), torch_threads(1):
             self._curr_obs, self._curr_info = self._reset_envs()
             local = self._rollout_test(num_eps_proc)
         return _reduce_episode_stats(local)
@@ -359,7 +387,7 @@ class BaseAgent(nn.Module, abc.ABC):
         update_normalizer = self._need_normalizer_update()
         start = time.perf_counter()
         self._sim_time = 0.0
-        with torch.no_grad():
+        with torch.no_grad(), torch_threads(1):  # see ROLLOUT_THREADS
             if not self._rollout_train(self.config.steps_per_iter):
                 return None
         collected = time.perf_counter()
