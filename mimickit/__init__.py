@@ -2,8 +2,9 @@
 
 __version__ = "0.1.0"
 
-import os as _os
-
-# Idle torch (OpenMP) worker threads spin between ops and steal a core from the MuJoCo stepping threads;
-# passive waiting measured 35% faster env steps at 64 envs. Must be set before torch is imported.
-_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# No OpenMP wait policy is set here. Torch's idle OpenMP workers spin a little (libgomp: ~300k spins)
+# before they sleep. An update's ops follow one another closely, and the spin keeps the workers ready
+# for the next op. OMP_WAIT_POLICY=PASSIVE, which this package once set, put them to sleep after every
+# op: each op then paid a wake-up, and the update took 46% of a training iteration instead of 30%
+# (`mimickit bench --train`). The rollout runs torch on one thread (`util.threads`), so no worker spins
+# on a core that MuJoCo needs.

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from typing import Any
 
 import torch
@@ -17,6 +17,7 @@ from mimickit.engines.engine import Engine, EngineConfig
 from mimickit.engines.engine_builder import build_engine
 from mimickit.envs.base_env import BaseEnv, BoxSpace, DoneFlags, EnvMode
 from mimickit.envs.env_config import SimEnvConfig
+from mimickit.util.threads import torch_threads
 from mimickit.util.timer import PhaseTimer
 
 
@@ -168,17 +169,8 @@ class SimEnv(BaseEnv):
         self._done_buf[:] = torch.where(timeout, int(DoneFlags.TIME), int(DoneFlags.NULL))
 
 
-@contextmanager
-def _one_torch_thread() -> Iterator[None]:
-    """Run env work with one torch intra-op thread. Its tensors are small ([N, ...] per env): a second
+def _one_torch_thread() -> AbstractContextManager[None]:
+    """Env work runs with one torch intra-op thread. Its tensors are small ([N, ...] per env): a second
     thread buys nothing but a fork/join per op, and afterwards spins on the core that a MuJoCo worker
     needs. The caller's thread count (the agent's updates use all cores) is restored on exit."""
-    n = torch.get_num_threads()
-    if n == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
+    return torch_threads(1)

@@ -34,10 +34,10 @@ class AWRAgent(PPOAgent):
         }
 
     def _compute_actor_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor] | None:
-        mask = batch["rand_action_mask"] == 1.0
-        if not bool(mask.any()):
+        rows = rl_util.exploring_rows(batch)
+        if rows is not None and not bool(rows.any()):
             return None
-        dist = self._model.eval_actor(self._net_input(batch, mask))
-        a_logp = dist.log_prob(self._a_norm.normalize(batch["action"][mask]))
-        info = {"actor_loss": -(batch["a_weight"][mask] * a_logp).mean()}
+        dist = self._model.eval_actor(self._net_input(batch, rows))
+        a_logp = dist.log_prob(rl_util.select_rows(batch["norm_action"], rows))
+        info = {"actor_loss": -(rl_util.select_rows(batch["a_weight"], rows) * a_logp).mean()}
         return self._add_actor_penalties(dist, info)

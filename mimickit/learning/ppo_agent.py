@@ -97,6 +97,10 @@ class PPOAgent(BaseAgent):
             adv_mean, adv_std = self._calc_adv_stats(adv, buf.get_data("rand_action_mask"))
             norm_adv = (adv - adv_mean) / adv_std.clamp_min(1e-5)
         buf.set_data("tar_val", tar_val)
+        # The normalisers stay fixed through the updates: normalise the update inputs once, not per minibatch.
+        with torch.no_grad():
+            buf.set_data("norm_obs", self._obs_norm.normalize(buf.get_data("obs")))
+            buf.set_data("norm_action", self._a_norm.normalize(buf.get_data("action")))
         info = self._store_actor_targets(norm_adv)
         return {"adv_mean": adv_mean.item(), "adv_std": adv_std.item(), **info}
 
@@ -162,20 +166,19 @@ class PPOAgent(BaseAgent):
     def _net_input(self, batch: dict[str, torch.Tensor], rows: torch.Tensor | None = None) -> torch.Tensor:
         """What the actor and critic read for a minibatch (or its `rows`): the normalised observation.
         Agents that condition on more (ASE's latents) override this one method."""
-        obs = batch["obs"] if rows is None else batch["obs"][rows]
-        return self._obs_norm.normalize(obs)
+        return rl_util.select_rows(batch["norm_obs"], rows)
 
     def _compute_actor_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor] | None:
         """Clipped surrogate on exploring rows, plus the actor penalties (all in `actor_loss`)."""
-        mask = batch["rand_action_mask"] == 1.0
-        if not bool(mask.any()):
+        rows = rl_util.exploring_rows(batch)
+        if rows is not None and not bool(rows.any()):
             return None
-        dist = self._model.eval_actor(self._net_input(batch, mask))
-        a_logp = dist.log_prob(self._a_norm.normalize(batch["action"][mask]))
-        ratio = torch.exp(a_logp - batch["a_logp"][mask])
+        dist = self._model.eval_actor(self._net_input(batch, rows))
+        a_logp = dist.log_prob(rl_util.select_rows(batch["norm_action"], rows))
+        ratio = torch.exp(a_logp - rl_util.select_rows(batch["a_logp"], rows))
         clip = self.config.ppo_clip_ratio
         info = {
-            "actor_loss": rl_util.ppo_surrogate_loss(ratio, batch["adv"][mask], clip),
+            "actor_loss": rl_util.ppo_surrogate_loss(ratio, rl_util.select_rows(batch["adv"], rows), clip),
             "clip_frac": rl_util.ppo_clip_frac(ratio.detach(), clip),
             "imp_ratio": ratio.detach().mean(),
         }

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import torch
 
 from mimickit.envs.base_env import DoneFlags
@@ -51,3 +53,15 @@ def action_bound_loss(norm_mean: torch.Tensor) -> torch.Tensor:
 def awr_weights(norm_adv: torch.Tensor, temp: float, weight_clip: float) -> torch.Tensor:
     """min(exp(Â / temp), clip), same shape as the (unclipped) normalised advantages."""
     return torch.exp(norm_adv / temp).clamp_max(weight_clip)
+
+
+def exploring_rows(batch: Mapping[str, torch.Tensor]) -> torch.Tensor | None:
+    """The mask of a minibatch's exploring rows (the actor learns from these only); None when every row
+    explored (exp_prob 1, the usual case), which spares the losses a masked copy of each input."""
+    mask = batch["rand_action_mask"] == 1.0
+    return None if bool(mask.all()) else mask
+
+
+def select_rows(x: torch.Tensor, rows: torch.Tensor | None) -> torch.Tensor:
+    """`x[rows]`, or `x` itself when `rows` is None (all rows)."""
+    return x if rows is None else x[rows]

@@ -88,3 +88,24 @@ def test_experience_buffer_sampling_covers_one_epoch():
     assert buf.get_total_samples() == 12
     buf.clear()
     assert buf.get_total_samples() == 0
+
+
+def test_exploring_rows_is_none_when_every_row_explored():
+    assert rl_util.exploring_rows({"rand_action_mask": torch.ones(5)}) is None
+    mask = rl_util.exploring_rows({"rand_action_mask": torch.tensor([1.0, 0.0, 1.0])})
+    assert mask.tolist() == [True, False, True]
+    x = torch.arange(3.0)
+    assert rl_util.select_rows(x, mask).tolist() == [0.0, 2.0]
+    assert rl_util.select_rows(x, None) is x
+
+
+def test_minibatch_rows_match_across_arrays():
+    """A minibatch gathers each array when read, all from the same sampled rows."""
+    buf = ExperienceBuffer(buffer_length=2, batch_size=4, device="cpu")
+    for t in range(2):
+        buf.record("x", torch.arange(4.0) + 10 * t)
+        buf.record("y", -(torch.arange(4.0) + 10 * t))
+        buf.inc()
+    batch = buf.sample(5)
+    assert set(batch) == {"x", "y"} and len(batch) == 2
+    assert torch.equal(batch["y"], -batch["x"]) and batch["x"].shape == (5,)
