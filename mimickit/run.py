@@ -12,6 +12,10 @@ finished / stopped / diverged / failed with the line that says why). Without `--
 drawn and recorded; `--rand_seed <seed>` repeats a CPU run's metrics rows exactly (same num_envs).
 `--model_file RUN/model.pt --out_dir RUN --max_samples LARGER` continues a run with a new budget.
 SIGTERM or Ctrl-C during training saves a checkpoint and exits 0 (state stopped).
+Several processes: `--devices cpu cpu` spawns one per device; under torchrun (`torchrun --nproc-per-node 2
+-m mimickit.cli train ...`, see `mimickit.torchrun_env`) every process is already started and joins the
+group through env://; rank 0 draws the seed and broadcasts it, and writes the run folder, as with
+`--devices`. args.json's `launch` says which (`spawn` or `torchrun`, world size, nodes).
 Exit codes: 0 finished or stopped, 1 failed after the run started, 2 refused before anything started
 (one `error:` line), 3 diverged (a non-finite loss, gradient, weight, observation or action).
 """
@@ -39,6 +43,7 @@ import yaml
 
 from mimickit.run_args import check_run_args
 from mimickit.run_folder import EndState, ExitCode, RunFolder
+from mimickit.torchrun_env import TorchrunEnv, check_master_port, node_devices, read_torchrun_env
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
@@ -86,9 +91,17 @@ def seed_everything(args: ArgParser, rank: int, base_seed: int | None = None) ->
 
 
 def run(
-    rank: int, world: int, device: str, port: int, argv: list[str], base_seed: int | None = None
+    rank: int,
+    world: int,
+    device: str,
+    port: int | None,
+    argv: list[str],
+    base_seed: int | None = None,
+    launch: dict[str, Any] | None = None,
 ) -> dict[str, Any] | int:
-    """One process of a (possibly multi-process) run: the test result (test mode) or the exit code."""
+    """One process of a (possibly multi-process) run: the test result (test mode) or the exit code.
+    `port` None: join the group through env:// (torchrun). `launch`: how the processes were started
+    (`spawn_launch` / `TorchrunEnv.record`, plus this node's `devices`), recorded in args.json."""
     from mimickit.learning import mp_util
     from mimickit.learning.agent_builder import build_agent
 
@@ -102,9 +115,11 @@ def run(
         resume = check_resume_budget(args.parse_string("model_file", ""), args.parse_int("max_samples", NO_LIMIT))
     if base_seed is None:
         base_seed = draw_seed(args)[0]
+    launch = launch or spawn_launch([device] * world)
     mp_util.init(rank, world, device, port)
+    base_seed = mp_util.broadcast_int(base_seed)  # torchrun: each process drew its own; rank 0's counts
     seed_everything(args, rank, base_seed)
-    torch.set_num_threads(max(1, (os.cpu_count() or 1) // world))
+    torch.set_num_threads(max(1, (os.cpu_count() or 1) // launch["local_world_size"]))
 
     env, env_info = build_run_env(inputs, args.parse_int("num_envs", 1), device)
     agent = build_agent(inputs.agent_file, env, device)
@@ -118,7 +133,7 @@ def run(
         summary = getattr(env, "tracking_summary", dict)()
         result["tracking"] = test_tracking(summary)
         return result
-    return _train(args, argv, inputs, env_info, agent, base_seed, world, resume)
+    return _train(args, argv, inputs, env_info, agent, base_seed, launch, resume)
 
 
 def check_resume_budget(model_file: str, max_samples: int) -> dict[str, Any] | None:
@@ -182,9 +197,11 @@ def build_run_env(inputs: RunInputs, num_envs: int, device: str) -> tuple[Any, d
 
 
 def test_tracking(summary: dict[str, float]) -> dict[str, float]:
-    """The env's tracking errors over the test steps, averaged over processes, plus the two of the ADD
-    paper's Table 1: `pos_err_m` (mean over bodies of the root-relative body position error, metres) and
-    `dof_vel_err` (mean |Δ dof velocity|, rad/s). Empty for envs without a reference motion."""
+    """The env's tracking errors over the test steps, averaged over processes, plus `pos_err_m`: the
+    reference code's position error (body_pos_err, the mean over bodies of the root-relative body
+    position error, metres; no global root term). The paper's Table 1 errors are the env's
+    `paper_pos_err_m` and `paper_dof_vel_err` (deepmimic_rewards.paper_errors). Empty for envs without
+    a reference motion."""
     from mimickit.learning import mp_util
 
     tracking = {k: float(mp_util.reduce_mean(v)) for k, v in sorted(summary.items())}
@@ -203,7 +220,7 @@ def _train(
     env_info: dict[str, Any],
     agent: Any,
     seed: int,
-    world: int,
+    launch: dict[str, Any],
     resume: dict[str, Any] | None,
 ) -> int:
     from mimickit.learning import mp_util
@@ -212,8 +229,8 @@ def _train(
     folder = RunFolder(Path(args.parse_string("out_dir", "output/")).resolve())
     root = mp_util.is_root_proc()
     if root:
-        effective = _effective_values(args, inputs, env_info, agent, folder, max_samples, world)
-        _start_run_folder(folder, args, argv, inputs, effective, seed, resume)
+        effective = _effective_values(args, inputs, env_info, agent, folder, max_samples, launch)
+        _start_run_folder(folder, args, argv, inputs, effective, seed, resume, launch)
     signals = _install_stop_handlers(agent)
     try:
         summary = agent.train_model(
@@ -256,7 +273,7 @@ def _effective_values(
     agent: Any,
     folder: RunFolder,
     max_samples: int,
-    world: int,
+    launch: dict[str, Any],
 ) -> dict[str, Any]:
     """Every value the run uses, whether given, from the arg file, from a config or a default."""
     cfg = agent.config
@@ -266,8 +283,8 @@ def _effective_values(
         "mode": "train",
         "num_envs": agent.get_num_envs(),
         "max_samples": max_samples if max_samples < NO_LIMIT else None,
-        "devices": args.parse_strings("devices") or default_devices(),
-        "world_size": world,
+        "devices": launch["devices"],
+        "world_size": launch["world_size"],
         "engine_config": inputs.engine_file,
         "env_config": inputs.env_file,
         "agent_config": inputs.agent_file,
@@ -293,6 +310,7 @@ def _start_run_folder(
     effective: dict[str, Any],
     seed: int,
     resume: dict[str, Any] | None,
+    launch: dict[str, Any],
 ) -> None:
     """Configs as trained, args.json and state.json `running` (rank 0), before the first iteration."""
     from mimickit.run_record import args_record
@@ -305,7 +323,8 @@ def _start_run_folder(
     table = {k: args.parse_strings(k) for k in args.all_keys()}
     source = "rand_seed" if args.parse_int("rand_seed", -1) >= 0 else "drawn"
     previous = folder.read_args() if resume is not None else None
-    folder.write_args(args_record(argv, table, effective, seed, source, resume, previous))
+    record = {k: v for k, v in launch.items() if k != "devices"}  # devices: under `effective`
+    folder.write_args(args_record(argv, table, effective, seed, source, resume, previous, record))
     folder.write_state(EndState.RUNNING, "", iteration=resume["iteration"] if resume else 0,
                        samples=resume["samples"] if resume else 0)  # fmt: skip
 
@@ -353,39 +372,67 @@ def _install_stop_handlers(agent: Any) -> list[str]:
     return received
 
 
-def _worker(rank: int, world: int, devices: list[str], port: int, argv: list[str], seed: int) -> None:
-    run(rank, world, devices[rank], port, argv, seed)
+def spawn_launch(devices: list[str]) -> dict[str, Any]:
+    """args.json's `launch` for processes `main` spawned, one per `--devices` entry."""
+    n = len(devices)
+    return {"launcher": "spawn", "world_size": n, "local_world_size": n, "nodes": 1, "devices": list(devices)}
+
+
+def _worker(rank: int, devices: list[str], port: int, argv: list[str], seed: int) -> None:
+    run(rank, len(devices), devices[rank], port, argv, seed, spawn_launch(devices))
+
+
+def _run_spawned(args: ArgParser, argv: list[str], seed: int) -> dict[str, Any] | int:
+    """Rank 0 here, ranks 1.. in spawned processes, one per `--devices` entry."""
+    devices = args.parse_strings("devices") or default_devices()
+    world = len(devices)
+    port = args.parse_int("master_port", 0) or free_port()
+    procs = []
+    if world > 1:
+        import torch.multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        procs = [ctx.Process(target=_worker, args=(r, devices, port, argv, seed)) for r in range(1, world)]
+        for p in procs:
+            p.start()
+    result = run(0, world, devices[0], port, argv, seed, spawn_launch(devices))
+    for p in procs:
+        p.join()
+        if p.exitcode != 0:
+            raise MimicKitError(f"worker process exited with code {p.exitcode}")
+    return result
+
+
+def _run_torchrun(args: ArgParser, argv: list[str], tenv: TorchrunEnv, seed: int) -> dict[str, Any] | int:
+    """This process's rank of a torchrun launch: nothing to spawn, the group joined through env://."""
+    check_master_port(args.parse_int("master_port", 0) != 0, tenv)
+    cuda_count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    devices = node_devices(args.parse_strings("devices"), tenv, cuda_count)
+    launch = {**tenv.record(), "devices": devices}
+    return run(tenv.rank, tenv.world, devices[tenv.local_rank], None, argv, seed, launch)
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    tenv: TorchrunEnv | None = None
     try:
+        tenv = read_torchrun_env()
         args = ArgParser()
         args.load_args(argv)
-        check_run_args(args)  # unknown keys and bad values: one line before any process or file exists
-        devices = args.parse_strings("devices") or default_devices()
-        world = len(devices)
-        port = args.parse_int("master_port", 0) or free_port()
-        seed = draw_seed(args)[0]  # drawn once, so every process and args.json share it
-        if world > 1:
-            import torch.multiprocessing as mp
-
-            ctx = mp.get_context("spawn")
-            worker_args = [(r, world, devices, port, argv, seed) for r in range(1, world)]
-            procs = [ctx.Process(target=_worker, args=a) for a in worker_args]
-            for p in procs:
-                p.start()
-        result = run(0, world, devices[0], port, argv, seed)
-        if world > 1:
-            for p in procs:
-                p.join()
-                if p.exitcode != 0:
-                    raise MimicKitError(f"worker process exited with code {p.exitcode}")
+        # unknown keys and bad values: one line before any process or file exists. Under torchrun only
+        # rank 0 probes --out_dir (the one that writes it; concurrent probes would race on its removal).
+        check_run_args(args, probe_out_dir=tenv is None or tenv.rank == 0)
+        seed = draw_seed(args)[0]  # drawn once, so every process and args.json share it (torchrun: rank 0's)
+        result = _run_spawned(args, argv, seed) if tenv is None else _run_torchrun(args, argv, tenv, seed)
     except MimicKitError as e:
-        print(f"error: {e}", file=sys.stderr)
+        # Every process of a torchrun node ran the same checks on the same files: one line per node.
+        if tenv is None or tenv.local_rank == 0:
+            print(f"error: {e}", file=sys.stderr)
         return ExitCode.REFUSED
     if isinstance(result, int):
         return result
+    if tenv is not None and tenv.rank != 0:
+        return ExitCode.OK  # the test result (the same on every rank) is printed once, by rank 0
     if args.has_key("json") and args.parse_bool("json", True):
         print(json.dumps(result))
     else:

@@ -50,8 +50,9 @@ _MULTI_VALUE_ARGS = ("devices",)
 _DEVICE_RE = re.compile(r"^(cpu|cuda)(:(\d+))?$")
 
 
-def check_run_args(args: ArgParser) -> None:
-    """Raise one `MimicKitError` for the first unknown key or bad value of a run's arguments."""
+def check_run_args(args: ArgParser, probe_out_dir: bool = True) -> None:
+    """Raise one `MimicKitError` for the first unknown key or bad value of a run's arguments
+    (`probe_out_dir` False: --out_dir is not probed, as for a torchrun rank other than 0)."""
     for key in args.all_keys():
         if key not in RUN_ARGS:
             near = nearest_name(key, RUN_ARGS)
@@ -74,7 +75,7 @@ def check_run_args(args: ArgParser) -> None:
     _check_existing(args, "data_dir", is_dir=True)
     _check_existing(args, "model_file", is_dir=False)
     _check_model_file(args)
-    if mode == "train":
+    if mode == "train" and probe_out_dir:
         check_writable_dir(Path(args.parse_string("out_dir", "output/")), f"--out_dir{_where(args, 'out_dir')}")
 
 

@@ -25,9 +25,11 @@ def args_record(
     seed_source: str,
     resume: dict[str, Any] | None = None,
     previous: dict[str, Any] | None = None,
+    launch: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """args.json's object. `previous` (the folder's args.json before a resume) is kept, with its own
-    earlier starts, under `previous_starts`, oldest first."""
+    earlier starts, under `previous_starts`, oldest first. `launch`: how the processes were started
+    (`launcher` spawn or torchrun, `world_size`, `local_world_size`, `nodes`; torchrun: `master`, `run_id`)."""
     history: list[dict[str, Any]] = []
     if previous:
         previous = dict(previous)
@@ -45,6 +47,7 @@ def args_record(
         "start_time": now,
         "start_time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(now)),
         "resume": resume,
+        "launch": launch,
         "previous_starts": history,
     }
 

@@ -1,7 +1,8 @@
 """Multi-process helpers over `torch.distributed` (spec §1.4).
 
 One OS process per device; `init(rank, num_procs, device, port)` joins the process group (gloo on
-CPU, NCCL on CUDA). With a single process no group is created and every collective is the identity,
+CPU, NCCL on CUDA) at localhost:port, or, with port None, through env:// (MASTER_ADDR / MASTER_PORT as
+torchrun sets them). With a single process no group is created and every collective is the identity,
 so agents call these helpers unconditionally.
 
 Collectives accept tensors or python scalars; scalars travel as a tensor on the process device and
@@ -24,18 +25,20 @@ _device = torch.device("cpu")
 Scalar = TypeVar("Scalar", int, float, torch.Tensor)
 
 
-def init(rank: int, num_procs: int, device: torch.device | str, master_port: int) -> None:
-    """Join the process group of `num_procs` processes as `rank` (no group when `num_procs` is 1)."""
+def init(rank: int, num_procs: int, device: torch.device | str, master_port: int | None) -> None:
+    """Join the process group of `num_procs` processes as `rank` (no group when `num_procs` is 1), at
+    localhost:`master_port`, or with `master_port` None at the environment's MASTER_ADDR:MASTER_PORT."""
     global _num_procs, _rank, _device
     _num_procs, _rank, _device = num_procs, rank, torch.device(device)
     if num_procs <= 1:
         return
-    os.environ["MASTER_ADDR"] = "localhost"
-    os.environ["MASTER_PORT"] = str(master_port)
+    if master_port is not None:
+        os.environ["MASTER_ADDR"] = "localhost"
+        os.environ["MASTER_PORT"] = str(master_port)
     backend = "nccl" if _device.type == "cuda" and sys.platform != "win32" else "gloo"
     if _device.type == "cuda":
         torch.cuda.set_device(_device)
-    dist.init_process_group(backend, rank=rank, world_size=num_procs)
+    dist.init_process_group(backend, init_method="env://", rank=rank, world_size=num_procs)
 
 
 def shutdown() -> None:
@@ -72,6 +75,15 @@ def broadcast(x: torch.Tensor) -> torch.Tensor:
     if enable_mp():
         dist.broadcast(out, src=0)
     return out
+
+
+def broadcast_int(x: int) -> int:
+    """Rank 0's `x` on every process (e.g. a seed only rank 0 drew)."""
+    if not enable_mp():
+        return x
+    t = torch.tensor([x], dtype=torch.int64, device=_device)
+    dist.broadcast(t, src=0)
+    return int(t.item())
 
 
 def reduce_sum(x: Scalar) -> Scalar:
