@@ -68,7 +68,8 @@ class DeepMimicEnv(CharEnv):
                 f"joint_err_w has {len(joint_err_w)} values; {self._char_file} has {char.get_num_joints() - 1} joints"
             )
         self._joint_err_w = torch.tensor(joint_err_w, dtype=torch.float32, device=dev)
-        self._dof_err_w = self._joint_err_w[torch.as_tensor(char.dof_joint_ids(), device=dev)]
+        self._dof_joint_ids = torch.as_tensor(char.dof_joint_ids(), device=dev)
+        self._dof_err_w = self._joint_err_w[self._dof_joint_ids]
         contact = {char.get_body_id(b) for b in config.contact_bodies}
         non_contact = [b for b in range(char.get_num_joints()) if b not in contact]
         self._non_contact_ids = torch.tensor(non_contact, dtype=torch.long, device=dev)
@@ -343,7 +344,7 @@ class DeepMimicEnv(CharEnv):
             return
         if sim is None or ref is None:
             sim, ref = self._sim_state(env_ids), self._ref_state(env_ids)
-        tracking = tracking_errors(sim, ref)
+        tracking = tracking_errors(sim, ref, self._dof_joint_ids)
         self._store_info("tracking", tracking, env_ids)
         if self._mode == EnvMode.TEST:
             self._record_tracking(tracking)

@@ -89,16 +89,49 @@ def compute_reward_terms(
     return {name: torch.exp(-scales[name] * err) for name, err in errors.items()}
 
 
-def tracking_errors(sim: dict[str, torch.Tensor], ref: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """Per-env tracking errors [N] (spec §5.3): metres, radians and their rates, means over bodies/DoFs."""
+def tracking_errors(
+    sim: dict[str, torch.Tensor], ref: dict[str, torch.Tensor], dof_joint_ids: torch.Tensor
+) -> dict[str, torch.Tensor]:
+    """Per-env tracking errors [N]: the reference code's seven (spec §5.3; metres, radians and their
+    rates, means over bodies/DoFs), then the paper's two (`paper_errors`). `dof_joint_ids` [D]: the
+    non-root joint (0..J-2) owning each DoF (`KinCharModel.dof_joint_ids`)."""
+    root_err = torch.linalg.norm(sim["root_pos"] - ref["root_pos"], dim=-1)
     body_rel = sim["body_pos"] - sim["root_pos"].unsqueeze(-2)
     ref_body_rel = ref["body_pos"] - ref["root_pos"].unsqueeze(-2)
+    rel_err = torch.linalg.norm(body_rel - ref_body_rel, dim=-1)  # [N, J], 0 for the root itself
     return {
-        "root_pos_err": torch.linalg.norm(sim["root_pos"] - ref["root_pos"], dim=-1),
+        "root_pos_err": root_err,
         "root_rot_err": tu.quat_diff_angle(sim["root_rot"], ref["root_rot"]),
-        "body_pos_err": torch.linalg.norm(body_rel - ref_body_rel, dim=-1).mean(-1),
+        "body_pos_err": rel_err.mean(-1),
         "body_rot_err": tu.quat_diff_angle(sim["body_rot"], ref["body_rot"]).mean(-1),
         "dof_vel_err": (sim["dof_vel"] - ref["dof_vel"]).abs().mean(-1),
         "root_vel_err": (sim["root_vel"] - ref["root_vel"]).abs().mean(-1),
         "root_ang_vel_err": (sim["root_ang_vel"] - ref["root_ang_vel"]).abs().mean(-1),
+        **paper_errors(sim, ref, rel_err, root_err, dof_joint_ids),
+    }
+
+
+def paper_errors(
+    sim: dict[str, torch.Tensor],
+    ref: dict[str, torch.Tensor],
+    rel_err: torch.Tensor,
+    root_err: torch.Tensor,
+    dof_joint_ids: torch.Tensor,
+) -> dict[str, torch.Tensor]:
+    """The paper's position and DoF velocity errors [N], each a mean over N_joint + 1 = J terms (the J-1
+    non-root joints, fixed ones included, plus the root), where the reference code's body_pos_err
+    leaves out the root's global position:
+    * paper_pos_err_m = (Σ_j |Δ(x_j − x_root)| + |Δx_root|) / J, metres;
+    * paper_dof_vel_err = (Σ_j |Δq̇_j| + |Δω_root|) / J, rad/s: |Δq̇_j| the L2 norm over joint j's DoFs of
+      its local angular-velocity error (1 value for a hinge, 3 for a ball joint, 0 for a fixed one),
+      Δω_root the error of the root's angular velocity in its own (local) frame.
+    rel_err [N, J] are the root-relative body position errors (column 0 the root's, 0), root_err [N]."""
+    num_joints = rel_err.shape[-1]
+    sq = (sim["dof_vel"] - ref["dof_vel"]).square()
+    per_joint = sq.new_zeros(sq.shape[0], num_joints - 1).index_add_(1, dof_joint_ids, sq).sqrt()
+    root_w = tu.quat_rotate_inverse(sim["root_rot"], sim["root_ang_vel"])
+    ref_root_w = tu.quat_rotate_inverse(ref["root_rot"], ref["root_ang_vel"])
+    return {
+        "paper_pos_err_m": (rel_err[..., 1:].sum(-1) + root_err) / num_joints,
+        "paper_dof_vel_err": (per_joint.sum(-1) + torch.linalg.norm(root_w - ref_root_w, dim=-1)) / num_joints,
     }
