@@ -10,8 +10,9 @@
 * Updates: critic, actor (PPO + diversity_weight · diversity loss), discriminator (AMP), then the
   encoder: `enc_epochs` over the rollout in minibatches of ceil(enc_batch_size × num_envs), loss
   mean(−z·ẑ).
-* Diversity loss on an actor minibatch: draw new latents z′ for its observations; Δa = mean over action
-  dims of (μ(s,z′) − μ(s,z))², Δz = 0.5 − 0.5 z′·z; loss = mean (diversity_tar − Δa / (Δz + 1e-5))².
+* Diversity loss on an actor minibatch's exploring rows (like PPO's surrogate): draw new latents z′ for
+  their observations; Δa = mean over action dims of (μ(s,z′) − μ(s,z))², Δz = 0.5 − 0.5 z′·z;
+  loss = mean (diversity_tar − Δa / (Δz + 1e-5))².
 The latents are not part of the checkpoint (the reference's keys: AMP's plus `_model._enc_layers.*`,
 `_model._enc_out.*`). The agent also hands the env its encoder reward, so `info["reward_terms"]`
 carries `enc` beside `task` and `disc`.
@@ -25,7 +26,7 @@ from typing import Any, Protocol, runtime_checkable
 import torch
 
 from mimickit.envs.base_env import BaseEnv, DoneFlags
-from mimickit.learning import ase_util
+from mimickit.learning import ase_util, rl_util
 from mimickit.learning.agent_config import ASEAgentConfig
 from mimickit.learning.amp_agent import AMPAgent
 from mimickit.learning.ase_model import ASEModel
@@ -190,10 +191,13 @@ class ASEAgent(AMPAgent):
 
     def _compute_actor_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor] | None:
         """PPO's clipped surrogate and actor penalties on [obs, z], plus diversity_weight × the
-        diversity loss on the whole minibatch."""
-        info = super()._compute_actor_loss(batch)
+        diversity loss, both on the minibatch's exploring rows only (as the reference)."""
+        info = super()._compute_actor_loss(batch)  # None when no row explored
         if info is not None and self.config.diversity_weight != 0:
-            div = self._compute_diversity_loss(batch["obs"], batch["latent"])
+            rows = rl_util.exploring_rows(batch)
+            div = self._compute_diversity_loss(
+                rl_util.select_rows(batch["obs"], rows), rl_util.select_rows(batch["latent"], rows)
+            )
             info["actor_loss"] = info["actor_loss"] + self.config.diversity_weight * div
             info["diversity_loss"] = div.detach()
         return info

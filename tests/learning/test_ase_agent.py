@@ -163,3 +163,60 @@ def test_default_reset_prob_puts_envs_in_the_init_pose():
     env.config.default_reset_prob = 0.0
     env.reset()
     assert not torch.allclose(env._char_state()["root_pos"], env._init_root_pos.expand(16, -1))
+
+
+def test_encoder_output_layer_starts_uniform_in_a_tenth(agent: ASEAgent):
+    """`_enc_out` weights ~ U(−0.1, 0.1) and bias 0, as in the reference. PyTorch's default for its 64
+    inputs would be U(±1/√64 = ±0.125): the largest of 64 × 64 draws and their spread tell them apart."""
+    state = agent.state_dict()
+    w, b = state["_model._enc_out.weight"], state["_model._enc_out.bias"]
+    assert w.shape == (64, 64)
+    assert 0.095 < float(w.abs().max()) <= 0.1
+    assert abs(float(w.std()) - 0.1 / math.sqrt(3)) < 0.003  # a uniform's std: half-width / √3
+    assert torch.count_nonzero(b) == 0
+
+
+def _actor_batch(agent: ASEAgent, mask: list[float]) -> dict[str, torch.Tensor]:
+    """A hand-made actor minibatch of len(mask) rows, `rand_action_mask` = mask."""
+    n, a = len(mask), agent.get_action_size()
+    g = torch.Generator().manual_seed(3)
+    obs = torch.randn(n, 140, generator=g)
+    return {
+        "obs": obs, "norm_obs": agent._obs_norm.normalize(obs), "latent": ase_util.sample_latents(n, 64),
+        "norm_action": torch.randn(n, a, generator=g), "a_logp": torch.randn(n, generator=g),
+        "adv": torch.randn(n, generator=g), "rand_action_mask": torch.tensor(mask),
+    }  # fmt: skip
+
+
+def _diversity(agent: ASEAgent, batch: dict[str, torch.Tensor]) -> float:
+    torch.manual_seed(7)  # the same new latents z′ for each call
+    info = agent._compute_actor_loss(batch)
+    assert info is not None
+    return float(info["diversity_loss"].detach())
+
+
+def test_diversity_loss_uses_only_the_exploring_rows(agent: ASEAgent, monkeypatch: pytest.MonkeyPatch):
+    assert agent.config.diversity_weight != 0
+    # Target 0: the loss is mean (Δa/Δz)², which moves with every row it reads (with the target 1 it
+    # stays within 1e-6 of 1 for this untrained actor, whose action means hardly depend on z).
+    monkeypatch.setattr(agent.config, "diversity_tar", 0.0)
+    mask = [1.0, 0.0, 1.0, 1.0, 0.0, 1.0]
+    batch = _actor_batch(agent, mask)
+    loss = _diversity(agent, batch)
+
+    # It is the loss of the four exploring rows alone.
+    rows = torch.tensor(mask) == 1.0
+    torch.manual_seed(7)
+    alone = agent._compute_diversity_loss(batch["obs"][rows], batch["latent"][rows])
+    assert loss > 0 and loss == pytest.approx(float(alone.detach()), rel=1e-6, abs=0)
+
+    # A non-exploring row's obs and latent change nothing; an exploring row's do.
+    for row, changes in ((1, False), (4, False), (2, True)):
+        other = {k: v.clone() for k, v in batch.items()}
+        other["obs"][row] += 3.0
+        other["norm_obs"] = agent._obs_norm.normalize(other["obs"])
+        other["latent"][row] = -other["latent"][row]
+        assert (_diversity(agent, other) != loss) == changes, row  # the same rows in: bit for bit the same
+
+    # Every row exploring: all six count (the loss differs from the four rows').
+    assert _diversity(agent, _actor_batch(agent, [1.0] * 6)) != pytest.approx(loss, rel=1e-3, abs=0)
