@@ -24,7 +24,7 @@ from fastapi.staticfiles import StaticFiles
 
 from mimickit.anim.motion import load_motion
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import PROJECT_ROOT
+from mimickit.util.paths import PROJECT_WEB_DIR
 from studio.api import checkpoints as checkpoints_api
 from studio.api import library as library_api
 from studio.api import runs as runs_api
@@ -43,7 +43,7 @@ from studio.security import HostPolicy, PathError, RequestGuard, confine
 from studio.settings import Settings
 
 LOG = logging.getLogger("studio")
-WEB_DIR = PROJECT_ROOT / "web"
+WEB_DIR = PROJECT_WEB_DIR
 REGISTRY_FILE = "registry.sqlite"
 
 

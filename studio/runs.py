@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from mimickit.run_folder import MODEL_FILE, EndState, RunFolder
-from mimickit.util.paths import PROJECT_ROOT
+from mimickit.util.paths import IMPORT_ROOT
 from studio.registry import ACTIVE, Registry, Run, RunStatus
 from studio.run_summary import run_summary, seed_of
 from studio.settings import Settings
@@ -231,7 +231,7 @@ class RunManager:
         )
         # The trainer works in its run folder (MuJoCo's MUJOCO_LOG.TXT and the like land there, not in
         # the server's directory); the project stays importable for `python -m mimickit.cli`.
-        path = os.pathsep.join(p for p in (str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")) if p)
+        path = os.pathsep.join(p for p in (str(IMPORT_ROOT), os.environ.get("PYTHONPATH", "")) if p)
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": path}
         spawned = time.time()  # before the trainer can write its state.json: what it writes is newer
         with open(RunFolder(out_dir).console_file, "ab") as console:

@@ -8,7 +8,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, default_output_root
 
 DEFAULT_TRAINER = [sys.executable, "-m", "mimickit.cli", "train"]
 DEMO_CLIP = PROJECT_DATA_DIR / "motions" / "humanoid_demo_squat.pkl"
@@ -23,7 +23,7 @@ class Settings:
     port: int = 8000
     viser_port: int = 0  # 0: pick a free port
     data_dir: Path | None = None  # a user's MimicKit-style data folder (motions/, assets/, ...)
-    runs_dir: Path = field(default_factory=lambda: PROJECT_ROOT / "output" / "studio_runs")
+    runs_dir: Path = field(default_factory=lambda: default_output_root() / "output" / "studio_runs")
     token: str | None = None
     allowed_hosts: list[str] = field(default_factory=list)
     """Host header names accepted besides the bound host's (`--allowed-hosts`; `*`: any)."""

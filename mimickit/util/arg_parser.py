@@ -11,10 +11,9 @@ one error line naming it). Which keys a run knows and what values they take: `mi
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from mimickit.util.config import read_text_file
 from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import resolve_data_path
 
 _TRUE = {"true", "True", "1", "T", "t"}
 FALSE_VALUES = frozenset({"false", "False", "0", "F", "f"})
@@ -38,7 +37,7 @@ class ArgParser:
             self.load_file(arg_file)
 
     def load_file(self, path: str) -> None:
-        p = Path(path)
+        p = resolve_data_path(path)  # `args/x.txt` also names the project's own, from any folder
         if not p.is_file():
             raise MimicKitError(f"arg file not found: {path}")
         tokens: list[str] = []

@@ -3,7 +3,11 @@
 MimicKit configs name files relative to the MimicKit repository root, e.g.
 `data/assets/humanoid/humanoid.xml`. A path that starts with `data/` is looked up in the user's data
 folder (`--data_dir`) first and then in the project's own `data/`; other relative paths are taken
-relative to the working directory, then the data folder.
+relative to the working directory, then the data folder, then the project's root (`args/...`).
+
+The project's files (`data/`, `args/`, `web/`) sit at the top of the source tree, where a checkout and an
+editable install read them. A wheel cannot place folders beside site-packages, so `setup.py` copies them
+into the package as `mimickit/_share/`; when that folder exists, it is the project's root.
 """
 
 from __future__ import annotations
@@ -12,8 +16,23 @@ import os
 import tempfile
 from pathlib import Path
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
+PACKAGE_DIR = Path(__file__).resolve().parents[1]
+IMPORT_ROOT = PACKAGE_DIR.parent
+"""The folder `mimickit` is imported from: the checkout's root, or site-packages when installed."""
+_INSTALLED_SHARE = PACKAGE_DIR / "_share"
+INSTALLED = _INSTALLED_SHARE.is_dir()
+"""Whether this is a normal (non-editable) install, which carries the project's files in the package."""
+PROJECT_ROOT = _INSTALLED_SHARE if INSTALLED else IMPORT_ROOT
+"""The folder holding the project's `data/`, `args/` and `web/`."""
 PROJECT_DATA_DIR = PROJECT_ROOT / "data"
+PROJECT_ARGS_DIR = PROJECT_ROOT / "args"
+PROJECT_WEB_DIR = PROJECT_ROOT / "web"
+
+
+def default_output_root() -> Path:
+    """Where default output folders (`output/...`) go: the checkout's root, or the working directory
+    when installed (site-packages is no place for runs, and may be read-only)."""
+    return Path.cwd() if INSTALLED else IMPORT_ROOT
 
 _data_dirs: list[Path] = []
 
