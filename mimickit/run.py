@@ -29,6 +29,7 @@ import secrets
 import signal
 import socket
 import sys
+import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +51,8 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import atomic_write_bytes, resolve_data_path, set_data_dir
 
 NO_LIMIT = int(np.iinfo(np.int64).max)
+REFUSAL_WAIT_S = 10.0
+"""Under torchrun, how long a refusing process other than LOCAL_RANK 0 waits to be ended (see `_print_refusal`)."""
 
 
 @dataclass
@@ -412,6 +415,15 @@ def _run_torchrun(args: ArgParser, argv: list[str], tenv: TorchrunEnv, seed: int
     return run(tenv.rank, tenv.world, devices[tenv.local_rank], None, argv, seed, launch)
 
 
+def _print_refusal(e: MimicKitError, tenv: TorchrunEnv | None) -> None:
+    """The `error:` line, once per node under torchrun: every process of a node ran the same checks on
+    the same files, so LOCAL_RANK 0 prints it. The others wait first: torchrun ends them as soon as
+    LOCAL_RANK 0 exits, and if it did not refuse (it waits in the rendezvous) they print their own."""
+    if tenv is not None and tenv.local_rank != 0:
+        time.sleep(REFUSAL_WAIT_S)
+    print(f"error: {e}", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     tenv: TorchrunEnv | None = None
@@ -425,9 +437,7 @@ def main(argv: list[str] | None = None) -> int:
         seed = draw_seed(args)[0]  # drawn once, so every process and args.json share it (torchrun: rank 0's)
         result = _run_spawned(args, argv, seed) if tenv is None else _run_torchrun(args, argv, tenv, seed)
     except MimicKitError as e:
-        # Every process of a torchrun node ran the same checks on the same files: one line per node.
-        if tenv is None or tenv.local_rank == 0:
-            print(f"error: {e}", file=sys.stderr)
+        _print_refusal(e, tenv)
         return ExitCode.REFUSED
     if isinstance(result, int):
         return result
