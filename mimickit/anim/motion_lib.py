@@ -2,11 +2,13 @@
 
 All clips are concatenated along frames. Per frame it keeps root position/rotation, joint rotations
 and finite-difference velocities; queries take motion ids and times as tensors `[n]` and return
-batched tensors `[n, ...]`.
+batched tensors `[n, ...]`. Under several processes each loads only its share of a dataset
+(`process_share`).
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,6 +16,7 @@ import torch
 
 from mimickit.anim.kin_char_model import KinCharModel
 from mimickit.anim.motion import LoopMode, Motion, load_motion
+from mimickit.learning import mp_util
 from mimickit.util import torch_util as tu
 from mimickit.util.config import ConfigModel, load_config
 from mimickit.util.errors import MimicKitError
@@ -62,6 +65,42 @@ def load_motion_list(motion_file: str | Path) -> list[tuple[Path, float]]:
     return [(path, 1.0)]
 
 
+def process_share(
+    entries: list[tuple[Path, float]], rank: int, num_procs: int, source: str | Path = "the dataset"
+) -> list[tuple[Path, float]]:
+    """The clips process `rank` of `num_procs` trains on, as the reference splits a dataset (spec §1.4):
+    with M ≥ num_procs clips, process r keeps clips [round(r·M/W), round((r+1)·M/W)) (W = num_procs;
+    round half to even, as numpy's), so every clip goes to exactly one process and each gets at least
+    one; their weights are re-normalised by MotionLib to sum to 1 on that process. With fewer clips than
+    processes (M < W) nothing is split: every process samples the whole dataset with its weights (the
+    reference's behaviour). A share whose weights sum to 0 is an error naming `source` and the clips."""
+    m = len(entries)
+    if num_procs <= 1 or m < num_procs:
+        return list(entries)
+    begin, end = round(rank * m / num_procs), round((rank + 1) * m / num_procs)
+    share = entries[begin:end]
+    if sum(w for _, w in share) <= 0:
+        names = ", ".join(p.name for p, _ in share)
+        raise MimicKitError(
+            f"{source}: process {rank} of {num_procs} gets clips {begin}..{end - 1} ({names}), whose weights "
+            f"sum to 0 (each process samples only its share of a dataset): give them weight or reorder the clips"
+        )
+    return share
+
+
+def _report_share(
+    source: str | Path, rank: int, num_procs: int, entries: list[tuple[Path, float]], share: list[tuple[Path, float]]
+) -> None:
+    """One stderr line per process: which of the dataset's clips it samples (a run's log shows the split)."""
+    names = ", ".join(f"{p.name} ({w:g})" for p, w in share)
+    which = "all" if len(share) == len(entries) else f"{len(share)}"
+    print(
+        f"process {rank} of {num_procs}: {which} of the {len(entries)} clips of {source}: {names}",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 class MotionLib:
     def __init__(
         self,
@@ -69,11 +108,20 @@ class MotionLib:
         char_model: KinCharModel,
         device: torch.device | str = "cpu",
         weights: list[float] | None = None,
+        proc: tuple[int, int] | None = None,
     ) -> None:
+        """A clip, a dataset yaml, or clips in memory with their weights (never split). A dataset is
+        split across processes by `process_share`, as the reference does under several `--devices`:
+        `proc` = (rank, num_procs) whose share to load, by default this process's (mp_util)."""
         self.char_model = char_model
         self.device = torch.device(device)
         if isinstance(motion_file, (str, Path)):
+            rank, num_procs = proc or (mp_util.get_proc_rank(), mp_util.get_num_procs())
             entries = load_motion_list(motion_file)
+            share = process_share(entries, rank, num_procs, motion_file)
+            if num_procs > 1 and len(entries) > 1:
+                _report_share(motion_file, rank, num_procs, entries, share)
+            entries = share
             motions = [load_motion(p) for p, _ in entries]
             weights = [w for _, w in entries]
             self.motion_files = [str(p) for p, _ in entries]

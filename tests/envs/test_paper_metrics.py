@@ -104,6 +104,8 @@ def mimickit(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=PROJECT_ROOT)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_mimickit_test_json_and_metrics_jsonl_carry_the_paper_errors(tmp_path: Path):
     name = PROJECT_ROOT / "data/models/deepmimic_humanoid_demo_model"
     r = mimickit(
