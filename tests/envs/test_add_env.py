@@ -22,7 +22,7 @@ ENGINE = PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
 ADD = PROJECT_DATA_DIR / "envs/add_humanoid_env.yaml"
 DEMO_CLIP = PROJECT_DATA_DIR / "motions/humanoid_demo_squat.pkl"
 TRACKING = {"root_pos_err", "root_rot_err", "body_pos_err", "body_rot_err", "dof_vel_err", "root_vel_err",
-            "root_ang_vel_err"}  # fmt: skip
+            "root_ang_vel_err", "paper_pos_err_m", "paper_dof_vel_err"}  # fmt: skip
 
 
 def make(num_envs: int = 4, **overrides) -> ADDEnv:
