@@ -9,7 +9,7 @@ NEWTON_VENV := .venv-newton
 NEWTON_BIN := $(NEWTON_VENV)/bin
 NEWTON_STAMP := $(NEWTON_VENV)/.installed
 
-.PHONY: setup studio test browser lint format setup-newton test-newton
+.PHONY: setup studio test test-unit test-install browser lint format setup-newton test-newton
 
 setup: $(STAMP)
 
@@ -31,6 +31,16 @@ browser:
 
 test: setup browser
 	$(BIN)/python -m pytest -q
+
+# The fast subset (under a minute): no subprocess, server, browser, or test that trains to an improvement or
+# takes seconds (markers in pyproject.toml; the guard in tests/conftest.py fails an unmarked test that starts
+# a process).
+test-unit: setup
+	$(BIN)/python -m pytest -q -m "not integration and not browser and not slow"
+
+# A normal (non-editable) install from a wheel, in a fresh venv, run from another folder (also in `make test`).
+test-install: setup
+	$(BIN)/python -m pytest -q tests/test_install.py
 
 lint: setup
 	$(BIN)/ruff check mimickit studio tests benchmarks

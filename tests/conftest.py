@@ -1,13 +1,76 @@
-"""Shared fixtures. Real MimicKit data comes from `$MIMICKIT_TEST_DATA` (CI: ../shared/data)."""
+"""Shared fixtures. Real MimicKit data comes from `$MIMICKIT_TEST_DATA` (CI: ../shared/data).
+
+The unit/integration split: a test that starts a process (a subprocess, a server, a guarded loader's
+child, Chromium) carries the mark `integration` or `browser`, usually for its whole module
+(`pytestmark = pytest.mark.integration`); `make test-unit` runs the rest. The guard below keeps the
+marks honest: a test without either mark that starts a process fails, naming the mark it needs. It
+also sees processes started by the session and module fixtures a test is the first to ask for.
+"""
 
 from __future__ import annotations
 
+import multiprocessing.process
 import os
+import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from mimickit.util.paths import PROJECT_DATA_DIR
+
+PROCESS_MARKS = ("integration", "browser")
+_running: list[pytest.Item] = []  # the test being set up, run or torn down
+_started = pytest.StashKey[list[str]]()
+
+
+class ProcessInUnitTest(AssertionError):
+    pass
+
+
+def _may_start(what: str) -> None:
+    item = _running[-1] if _running else None  # None: collection, where module imports may probe
+    if item is None or any(item.get_closest_marker(m) for m in PROCESS_MARKS):
+        return
+    item.stash.setdefault(_started, []).append(what)
+    raise ProcessInUnitTest(f"{item.nodeid} starts {what}: mark it integration (or browser)")
+
+
+_popen_init = subprocess.Popen.__init__
+_process_start = multiprocessing.process.BaseProcess.start
+
+
+def _guarded_popen_init(self: subprocess.Popen, args: object, *rest: object, **kw: object) -> None:
+    _may_start(f"the process {args!r}")
+    _popen_init(self, args, *rest, **kw)
+
+
+def _guarded_process_start(self: multiprocessing.process.BaseProcess) -> None:
+    _may_start(f"a {type(self).__name__} running {getattr(self, '_target', None)!r}")
+    _process_start(self)
+
+
+subprocess.Popen.__init__ = _guarded_popen_init
+multiprocessing.process.BaseProcess.start = _guarded_process_start
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    _running.append(item)
+    try:
+        return (yield)
+    finally:
+        _running.pop()
+
+
+@pytest.fixture(autouse=True)
+def _no_process_in_unit_tests(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fails the test even where the code under test caught the guard's exception."""
+    yield
+    started = request.node.stash.get(_started, [])
+    if started:
+        pytest.fail(f"a test without the integration or browser mark started {started[0]}", pytrace=False)
+
 
 PROJECT_HUMANOID = PROJECT_DATA_DIR / "assets" / "humanoid" / "humanoid.xml"
 DEMO_CLIP = PROJECT_DATA_DIR / "motions" / "humanoid_demo_squat.pkl"

@@ -13,6 +13,8 @@ import pytest
 from tests.conftest import DEMO_CLIP, PROJECT_HUMANOID
 from tests.hostile.pkl_cases import clip, f32_storage, tensor
 
+pytestmark = pytest.mark.integration
+
 
 def mimickit(*args, cwd=None):
     return subprocess.run(

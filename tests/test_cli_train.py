@@ -11,10 +11,13 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import torch
 
 from mimickit.run_folder import RunFolder
 from mimickit.util.paths import PROJECT_ROOT
+
+pytestmark = pytest.mark.integration
 
 ARG_FILE = PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"
 NUM_ENVS = 4  # 32 steps per iteration: 128 samples

@@ -23,6 +23,8 @@ from mimickit.util.paths import PROJECT_ROOT
 from tests.conftest import DEMO_CLIP
 from tests.test_cli_train import ARG_FILE, NUM_ENVS, metrics, mimickit, train_args
 
+pytestmark = pytest.mark.integration
+
 SAMPLES_PER_ITER = NUM_ENVS * 32
 TWO_ITERS = str(2 * SAMPLES_PER_ITER)
 TIMING = ("time", "wall_time")

@@ -23,6 +23,8 @@ from mimickit.anim.motion import (
 from mimickit.util.errors import MimicKitError
 from mimickit.util.limits import ClipLimits
 
+pytestmark = pytest.mark.integration
+
 
 def _facts_table(test_data: Path) -> list[tuple[str, float, int, int, int, float]]:
     """Rows of the per-clip facts table in SOURCES.md: path, fps, loop, frames, cols, duration."""

@@ -29,7 +29,7 @@ from mimickit.util.arg_parser import ArgParser
 from mimickit.util.paths import PROJECT_ROOT, set_data_dir
 
 # The Go2's visual meshes are not in MimicKit's data; the loader drops them with a warning (tested in anim/).
-pytestmark = pytest.mark.filterwarnings(r"ignore:.*mesh file\(s\) missing:UserWarning")
+pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings(r"ignore:.*mesh file\(s\) missing:UserWarning")]
 
 ENGINE = PROJECT_ROOT / "data/engines/mujoco_engine.yaml"
 DT_STEPS_5S = 150  # 5 s at the engine's 30 Hz control rate

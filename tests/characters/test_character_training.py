@@ -15,6 +15,8 @@ import torch
 
 from mimickit.util.paths import PROJECT_ROOT
 
+pytestmark = pytest.mark.integration
+
 NUM_ENVS = 4  # 32 steps per iteration: 128 samples
 
 

@@ -155,6 +155,7 @@ def test_pd_explicit_and_pos_agree_over_a_few_steps():
     assert (runs["pos"][-1][0] - runs["pd_explicit"][-1][0]).abs().max() < 0.005
 
 
+@pytest.mark.slow
 def test_pd_explicit_holds_the_standing_pose_like_pos():
     finals = {}
     for mode in ("pos", "pd_explicit"):

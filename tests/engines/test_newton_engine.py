@@ -316,6 +316,7 @@ def mimickit(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=PROJECT_ROOT)
 
 
+@pytest.mark.integration
 def test_ppo_trains_on_newton_and_its_checkpoint_reloads_in_test(tmp_path: Path):
     # The demo env with 1 s episodes: a control step costs ~0.1-0.4 s on warp's single-threaded CPU
     # kernels, so the test episodes (run at iteration 0 and by `mimickit test`) must end soon.
@@ -338,6 +339,7 @@ def test_ppo_trains_on_newton_and_its_checkpoint_reloads_in_test(tmp_path: Path)
     assert 0.0 < result["tracking"]["pos_err_m"] < 1.0
 
 
+@pytest.mark.integration
 def test_sim2sim_json_on_the_demo_clip_reports_a_small_divergence():
     r = mimickit(
         "sim2sim", "--arg_file", str(DEMO_ARGS), "--motion_file", str(DEMO_CLIP),

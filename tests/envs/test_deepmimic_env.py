@@ -135,6 +135,7 @@ def test_unknown_env_key_is_named(tmp_path):
         load_env_configs(f, ENGINE)
 
 
+@pytest.mark.integration
 def test_bench_json_reports_ratio():
     import json
     import subprocess

@@ -208,6 +208,7 @@ def test_reached_target_diagnostic_counts_finished_episodes():
     assert env.record_diagnostics()["tar_episodes"] == 0.0, "each call reports the episodes since the last"
 
 
+@pytest.mark.integration
 def test_location_train_and_test_in_fresh_processes(tmp_path: Path, test_data: Path) -> None:
     out = tmp_path / "run"
     common = ["--arg_file", str(PROJECT_ROOT / "args/amp_location_humanoid_args.txt"), "--data_dir", str(test_data)]

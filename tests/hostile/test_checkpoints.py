@@ -322,6 +322,7 @@ def test_exported_checkpoint_loads(agent: BaseAgent, tmp_path: Path, reference: 
     agent.load(tmp_path / "e.pt")
 
 
+@pytest.mark.integration
 @one_case("ok-pt-trained-run-resumes-stale-temp-removed")
 def test_trained_checkpoint_resumes_and_stale_temp_was_removed(case: str, agent: BaseAgent, trained: Path) -> None:
     """ok-: a real run's checkpoint (Adam/SGD states after a step) passes every check; the temp file
@@ -352,6 +353,7 @@ def test_nonfinite_tensors_names_every_bad_tensor(case: str, agent: BaseAgent, t
 # ---------------------------------------------------------------- saving
 
 
+@pytest.mark.integration
 @one_case("err-save-read-only-folder")
 def test_save_into_read_only_folder(case: str, agent: BaseAgent, tmp_path: Path) -> None:  # err-: the real thing
     with read_only_dir(tmp_path / "ro") as ro:
@@ -403,6 +405,7 @@ CLI_CASES = [
 ]
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("make, needle", CLI_CASES)
 def test_cli_test_refuses_in_one_line(agent: BaseAgent, tmp_path: Path, make: Maker, needle: str) -> None:
     path = make(state_of(agent, tmp_path), tmp_path)

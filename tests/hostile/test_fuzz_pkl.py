@@ -19,10 +19,14 @@ import random
 import time
 from collections.abc import Callable
 
+import pytest
+
 from mimickit.util.errors import MimicKitError
 from mimickit.util.guarded import run_guarded
 from tests import conftest
 from tests.hostile.pkl_cases import all_cases, classify_batch
+
+pytestmark = pytest.mark.integration
 
 SEED = 17
 BATCH = 50

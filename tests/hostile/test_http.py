@@ -31,6 +31,8 @@ from tests.conftest import DEMO_CLIP
 from tests.hostile import http_payloads as P
 from tests.studio.conftest import StudioProcess, write_checkpoint_dir
 
+pytestmark = pytest.mark.integration
+
 TOKEN = "hostile-suite-token"
 SUBPROTOCOL = f"viser-v{viser.__version__}"
 BAD_XML = b"<mujoco><worldbody><body name='x'><geom type='capsule'"
@@ -658,6 +660,7 @@ def chromium_page() -> Iterator[Any]:
             browser.close()
 
 
+@pytest.mark.browser
 @case("ok-scene-renders-through-the-token-relay")
 def test_ok_scene_renders_through_the_token_relay(case: str, tok: StudioProcess) -> None:
     """Real Chromium opens the dashboard with its token: the scene's iframe is the relay and draws."""
@@ -676,6 +679,7 @@ def test_ok_scene_renders_through_the_token_relay(case: str, tok: StudioProcess)
     assert spread >= 10, "the scene's canvas stayed blank through the relay"
 
 
+@pytest.mark.browser
 @case("ok-page-shows-a-bad-clip-as-one-line")
 def test_ok_page_shows_a_bad_clip_as_one_line(case: str, srv: StudioProcess) -> None:
     """The library panel lists the data folder with its bad clips: each one row with its error."""

@@ -25,6 +25,8 @@ from mimickit.util.errors import MimicKitError
 from tests.conftest import DEMO_CLIP
 from tests.hostile.pkl_cases import Case, all_cases, frames_from_file
 
+pytestmark = pytest.mark.integration
+
 CASES = all_cases()
 REAL_CLIPS = [
     "humanoid/humanoid_spinkick.pkl",

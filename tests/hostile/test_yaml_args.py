@@ -328,6 +328,7 @@ def test_hostile_arg_file(tmp_path: Path, content: bytes, needle: str) -> None:
     assert_one_line(e, needle, "bad_args.txt")
 
 
+@pytest.mark.integration
 @one_case("err-outdir-read-only")
 def test_unwritable_out_dir(case: str, tmp_path: Path) -> None:  # err-: a read-only folder (the real thing)
     with read_only_dir(tmp_path / "ro") as ro:
@@ -424,6 +425,7 @@ CLI_CASES = [
 ]
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("case", CLI_CASES)
 def test_cli_train_refuses_in_one_line(tmp_path: Path, case: str) -> None:
     argv, needle = cli_cases(tmp_path)[case]

@@ -6,10 +6,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 import torch
 
 from mimickit.util.paths import PROJECT_ROOT
 from tests.learning.adversarial_cli import check_disc_log, check_disc_rows, test_json, train_short
+
+pytestmark = pytest.mark.integration
 
 ARG_FILE = PROJECT_ROOT / "args" / "add_humanoid_args.txt"
 DISC_COLUMNS = [

@@ -142,6 +142,7 @@ def test_disc_loss_is_bce_plus_weighted_penalties():
     assert "disc_logit_loss" not in no_reg._compute_disc_loss(batch)
 
 
+@pytest.mark.slow
 def test_training_separates_agent_from_demo_and_logs_the_style_reward(tmp_path):
     env, agent = make_agent()
     assert env.reward_weights == {"task": 0.0, "disc": 1.0}

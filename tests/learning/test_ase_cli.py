@@ -11,6 +11,8 @@ import torch
 from mimickit.util.paths import PROJECT_ROOT
 from tests.learning.adversarial_cli import test_json, train_short
 
+pytestmark = pytest.mark.integration
+
 ARG_FILE = PROJECT_ROOT / "args" / "ase_humanoid_args.txt"
 
 

@@ -9,6 +9,8 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
+pytestmark = pytest.mark.integration
+
 NUM_ENVS = 8
 STEPS = 20
 

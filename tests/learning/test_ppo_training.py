@@ -29,6 +29,7 @@ def read_metrics(path):
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_ppo_improves_and_writes_all_outputs(tmp_path):
     agent = make_ppo()
     before = agent.test_model(NUM_ENVS).mean_return
@@ -150,6 +151,7 @@ def test_request_stop_ends_training_and_saves(tmp_path):
     assert state[TRAIN_STATE_KEY]["iteration"] == 2 and state[TRAIN_STATE_KEY]["samples"] == 2 * SAMPLES_PER_ITER
 
 
+@pytest.mark.slow
 def test_awr_runs_and_improves(tmp_path):
     env = TargetReachEnv(num_envs=NUM_ENVS)
     agent = build_agent_from_config(AWRAgentConfig(**awr_config_dict()), env, "cpu")

@@ -21,6 +21,8 @@ from mimickit.torchrun_env import node_devices, read_torchrun_env
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_ROOT
 
+pytestmark = pytest.mark.integration
+
 ARG_FILE = PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"
 TORCHRUN = str(Path(sys.executable).with_name("torchrun"))
 SAMPLES_PER_ITER = 2 * 4 * 32  # 2 processes x 4 envs x 32 steps

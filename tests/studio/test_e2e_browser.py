@@ -27,7 +27,10 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not 
 Image = pytest.importorskip("PIL.Image")
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)")
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
+]
 RENDER_WAIT_S = 3.0  # software WebGL draws about one frame a second
 
 

@@ -27,6 +27,8 @@ from mimickit.util.paths import PROJECT_ROOT
 from tests.conftest import DEMO_CLIP
 from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for
 
+pytestmark = pytest.mark.integration
+
 DEMO_ARGS = "args/deepmimic_humanoid_demo_ppo_args.txt"
 PER_ITER = 4 * 32
 RUN_TIMEOUT_S = 300.0
@@ -203,6 +205,7 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
+@pytest.mark.browser
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH")
 def test_the_run_list_shows_seed_progress_and_end_state(
     server: StudioProcess, resumed_run: dict, diverged_run: dict, clip: Path

@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import pickle
 
+import pytest
+
 from tests.conftest import DEMO_CLIP
 from tests.studio.conftest import StudioProcess
+
+pytestmark = pytest.mark.integration
 
 
 def test_health(studio: StudioProcess) -> None:

@@ -12,6 +12,8 @@ import pytest
 from mimickit.util.paths import PROJECT_ROOT
 from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for
 
+pytestmark = pytest.mark.integration
+
 ARG_FILE = PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"
 TERMS = {"pose", "vel", "root_pose", "root_vel", "key_pos"}
 RUN_TIMEOUT_S = 400.0  # ~2 minutes on two shared cores; more when other work runs beside it

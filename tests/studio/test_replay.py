@@ -26,6 +26,8 @@ from studio.rollout import source_for_checkpoint
 from tests.conftest import DEMO_CLIP, PROJECT_HUMANOID
 from tests.studio.conftest import StudioProcess
 
+pytestmark = pytest.mark.integration
+
 HUMANOID_BODIES = load_char_model(PROJECT_HUMANOID).get_body_names()
 DEMO_MODEL = PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_demo_model.pt"
 

@@ -22,6 +22,8 @@ from studio.rollout import Rollout, RolloutPlayer, source_for_checkpoint
 from tests.conftest import PROJECT_HUMANOID
 from tests.studio.conftest import ENGINE_YAML, ENV_YAML, smaller_obs_env_yaml, wait_for, write_checkpoint_dir
 
+pytestmark = pytest.mark.slow
+
 TERMS = {"pose", "vel", "root_pose", "root_vel", "key_pos"}
 
 
@@ -58,6 +60,7 @@ def test_source_reads_the_run_folder(ckpt: Path, tmp_path: Path) -> None:
     assert given.env_config == ENV_YAML
 
 
+@pytest.mark.integration
 def test_source_takes_the_data_dir_of_a_cli_run(tmp_path: Path, test_data: Path) -> None:
     """A run trained from the CLI with --data_dir rolls out with that folder, read from its args.json."""
     out = tmp_path / "run"

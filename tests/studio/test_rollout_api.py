@@ -7,7 +7,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from tests.studio.conftest import ENV_YAML, StudioProcess, wait_for, write_arg_file
+
+pytestmark = pytest.mark.integration
 
 TERMS = {"pose", "vel", "root_pose", "root_vel", "key_pos"}
 

@@ -22,6 +22,8 @@ from studio.runs import RunManager, end_status, train_command
 from studio.settings import Settings
 from tests.studio.conftest import FAKE_TRAINER, wait_for, write_arg_file
 
+pytestmark = pytest.mark.integration
+
 
 def settings_for(tmp_path: Path) -> Settings:
     return Settings(runs_dir=tmp_path, trainer=[sys.executable, str(FAKE_TRAINER)], start_viser=False).resolved()

@@ -10,10 +10,13 @@ import os
 from pathlib import Path
 
 import httpx
+import pytest
 
 from mimickit.util.paths import PROJECT_ROOT
 from tests.conftest import DEMO_CLIP
 from tests.studio.conftest import StudioProcess, wait_for, write_arg_file
+
+pytestmark = pytest.mark.integration
 
 
 def launch(studio: StudioProcess, arg: str, **overrides: object) -> dict:

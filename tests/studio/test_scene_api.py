@@ -8,6 +8,8 @@ import pytest
 
 from tests.studio.conftest import StudioProcess, wait_for
 
+pytestmark = pytest.mark.integration
+
 WALK = "data/motions/humanoid/humanoid_walk.pkl"
 
 

@@ -33,6 +33,7 @@ KNOWN_PENETRATING = {
 FEET = ["right_foot", "left_foot"]
 
 
+@pytest.mark.slow
 def test_humanoid_clips_stay_above_ground(test_data):
     char = load_char_model(PROJECT_HUMANOID)
     root = test_data / "motions" / "humanoid"

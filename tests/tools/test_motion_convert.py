@@ -22,6 +22,8 @@ from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
 from tests.tools.test_smpl_convert import random_amass
 
+pytestmark = pytest.mark.integration
+
 rng = np.random.default_rng(3)
 
 

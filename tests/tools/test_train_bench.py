@@ -10,6 +10,8 @@ import pytest
 
 from mimickit.util.paths import PROJECT_ROOT
 
+pytestmark = pytest.mark.integration
+
 
 def bench(*args: str) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "mimickit.cli", "bench", *args]

@@ -16,6 +16,8 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
 from tests.conftest import DEMO_CLIP, PROJECT_HUMANOID
 
+pytestmark = pytest.mark.integration
+
 W, H = 160, 120  # small: these tests share the machine with training runs
 DEMO_MODEL = PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_demo_model.pt"
 DEMO_ARGS = PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"

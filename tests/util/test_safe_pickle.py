@@ -217,6 +217,7 @@ def _genops_end(data: bytes) -> int | None | str:
     return None
 
 
+@pytest.mark.slow
 def test_scan_agrees_with_pickletools_on_mutated_clips() -> None:
     """Differential: on clips with corrupted bytes, the scan (fast paths included: float rows,
     row boundaries, numpy-checked blocks of rows) ends where pickletools ends, or refuses."""

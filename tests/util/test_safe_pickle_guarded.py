@@ -18,6 +18,8 @@ import pytest
 from mimickit.util.errors import MimicKitError
 from mimickit.util.guarded import run_guarded
 
+pytestmark = pytest.mark.integration
+
 
 def echo(data: bytes) -> bytes:
     return data[::-1]
