@@ -1,11 +1,14 @@
-"""Live rollouts: a checkpoint's deterministic policy driving one MuJoCo env at real time.
+"""Live rollouts: a checkpoint's deterministic policy driving one env at real time, on either engine.
 
 `Rollout` is the simulation: the env built from a run's copied configs (`env_config.yaml`,
 `engine_config.yaml`, `agent_config.yaml` in its out_dir; `data_dir` from its `args.json`) with one env
 and `visualize=True`, so that the DeepMimic env adds its reference character (the "ghost", visual
-only) to the same MuJoCo model and poses it from the clip every step. Each step is recorded in a ring
-buffer (qpos, reward, each unweighted reward term), the last `HISTORY_S` seconds; an episode that
-ends is reset at once; a newer checkpoint file (polled mtime) is loaded and starts a new episode.
+only) to the scene and poses it from the clip every step. It is drawn through the engine's
+`mujoco_view`: a MuJoCo model of the scene (the MuJoCo engine's own, a MuJoCo copy for Newton) and the
+env's MjData, the character's and the ghost's bodies found by the env's object ids. Each step is
+recorded in a ring buffer (qpos, reward, each unweighted reward term), the last `HISTORY_S` seconds;
+an episode that ends is reset at once; a newer checkpoint file (polled mtime) is loaded and starts a
+new episode.
 
 `RolloutPlayer` runs a `Rollout` in a worker thread at the env's control rate (× speed) and draws it
 in the studio's scene. Its commands mirror the clip player's (play, pause, step, seek, configure), so
@@ -38,7 +41,6 @@ HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
 RELOAD_POLL_S = 1.0  # how often the checkpoint's mtime is checked
 MAX_STEP_FRAMES = 300  # one `step` command simulates at most this many steps
 MIN_SPEED, MAX_SPEED = 0.05, 4.0
-GHOST_NAME = "_reference/"  # DeepMimicEnv names its visual reference object "reference"
 
 
 @dataclass
@@ -149,14 +151,14 @@ class Rollout:
                 raise
         self.agent.eval()
         engine = self.env.engine
-        self.model: mujoco.MjModel = engine.mj_model
-        self.data: mujoco.MjData = engine.mj_datas[0]
+        view = engine.mujoco_view(0)  # every engine draws through a MuJoCo model of its scene
+        self.model: mujoco.MjModel = view.model
         self._scratch = mujoco.MjData(self.model)  # for drawing recorded frames
         self.dt = float(engine.get_timestep())
-        names = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(self.model.nbody)]
-        self.ghost_bodies = np.array([b for b, n in enumerate(names) if GHOST_NAME in n], dtype=np.int64)
-        char = [b for b, n in enumerate(names) if b > 0 and GHOST_NAME not in n]
-        self.root_body = char[0] if char else 0
+        # The character's and the ghost's bodies in that model, by the env's object ids.
+        self.root_body = int(view.objects[self.env.get_char_id()].body_ids[0])
+        ghost_id = self.env.get_ref_char_id()
+        self.ghost_bodies = view.objects[ghost_id].body_ids if ghost_id is not None else np.zeros(0, dtype=np.int64)
         self.ghost_root = int(self.ghost_bodies[0]) if len(self.ghost_bodies) else None
         self.reward_weights: dict[str, float] = dict(getattr(self.env, "reward_weights", {}) or {})
         self.history: deque[Frame] = deque(maxlen=max(2, round(history_s / self.dt)))
@@ -236,10 +238,8 @@ class Rollout:
             close()
 
     def _record(self, reward: float | None, terms: dict[str, float] | None, done: int) -> Frame:
-        # The env's getters have synced the MjData (character and ghost) for this step.
-        frame = Frame(
-            self.steps, self.episode, self.episode_step, self.data.qpos.copy(), reward, terms, self.episode_return, done
-        )
+        qpos = self.env.engine.mujoco_view(0).data.qpos.copy()  # the character and the ghost of this step
+        frame = Frame(self.steps, self.episode, self.episode_step, qpos, reward, terms, self.episode_return, done)
         self.history.append(frame)
         return frame
 

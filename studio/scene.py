@@ -1,7 +1,8 @@
 """The 3D scene in viser: a character drawn from its MJCF (mjviser), a dark ground grid, the root
 path of the clip, foot-contact markers, and a camera that follows the character. For a live rollout
-the scene shows the env's own MuJoCo model instead: the simulated character in its side colours and
-the reference character (the env's visual-only "ghost") as a translucent green figure.
+the scene shows the MuJoCo model of the engine's `mujoco_view` instead (either engine): the simulated
+character in its side colours and the reference character (the env's visual-only "ghost") as a
+translucent green figure.
 
 Camera follow moves the world, not the camera: the character's root is kept over the origin (in x, y)
 and the ground, path and markers shift under it, so each browser keeps its own orbit/zoom.
@@ -85,6 +86,7 @@ class StudioScene:
         self._char_path: Path | None = None
         self._mj: ViserMujocoScene | None = None
         self._body_map: np.ndarray = np.zeros(0, dtype=np.int64)  # char body j -> MuJoCo body id
+        self._nbody = 0  # bodies of the clip character's MuJoCo model (world included)
         self._contacts: list[viser.CylinderHandle] = []
         self.mode = "clip"  # "clip": the player draws; "rollout": a rollout draws (clip draws are ignored)
         self._ghost: list[tuple[int, viser.MeshHandle]] = []  # (MuJoCo body id, its translucent mesh)
@@ -149,6 +151,7 @@ class StudioScene:
         self._mj.camera_tracking_enabled = False  # we follow by moving the world (see module doc)
         names = pose.char.get_body_names()
         self._body_map = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names])
+        self._nbody = model.nbody
         self._char_path = pose.char_path
 
     def draw(self, pose: ClipPose, frame: int, follow: bool) -> np.ndarray:
@@ -156,12 +159,11 @@ class StudioScene:
         with self._lock:
             if self._mj is None or self.mode != "clip" or self._char_path != pose.char_path:
                 return np.zeros(3)
-            model = self._mj.mj_model
             offset = np.zeros(3)
             if follow:
                 offset[:2] = pose.root_pos[frame, :2]
-            xpos = np.zeros((1, model.nbody, 3))
-            xmat = np.tile(np.eye(3), (1, model.nbody, 1, 1))
+            xpos = np.zeros((1, self._nbody, 3))
+            xmat = np.tile(np.eye(3), (1, self._nbody, 1, 1))
             xpos[0, self._body_map] = pose.body_pos[frame] - offset
             xmat[0, self._body_map] = pose.body_xmat[frame]
             with self.server.atomic():

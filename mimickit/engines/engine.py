@@ -18,9 +18,10 @@ import math
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 import torch
@@ -30,6 +31,11 @@ from mimickit.anim.kin_char_model import KinCharModel
 from mimickit.util.config import ConfigModel
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import resolve_data_path
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from mimickit.engines.bench_util import RawRollout
 
 SUPPORTED_ENGINES = ("mujoco", "newton")
 # Rate bounds: a typo such as sim_freq 3e7 would make one env step run millions of physics steps.
@@ -148,6 +154,29 @@ class ObjRecord(Protocol):
     """What an engine stores per `create_obj` call; equal signatures = the same object in every env."""
 
     def signature(self) -> tuple: ...
+
+
+@dataclass(frozen=True)
+class ViewObject:
+    """One object of a `MujocoView`, at its obj_id."""
+
+    name: str
+    """The name given to `create_obj`."""
+    is_visual: bool
+    """Drawn only (a reference "ghost", a marker): no collisions."""
+    body_ids: np.ndarray
+    """[B] MuJoCo body ids of its bodies in the kinematic model's DFS order (the root first)."""
+
+
+@dataclass(frozen=True)
+class MujocoView:
+    """What a viewer (the studio, `mimickit video`) draws one env from, for every engine: a compiled MuJoCo
+    model of the scene, the env's MjData with its current state (qpos, qvel, and the body poses of
+    `mj_kinematics`), and where each object's bodies are in that model, by obj_id."""
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    objects: tuple[ViewObject, ...]
 
 
 def ball_cone_angle(low: np.ndarray, high: np.ndarray) -> float | None:
@@ -360,6 +389,29 @@ class Engine(abc.ABC):
 
     def get_video_recording(self) -> Any:
         return None
+
+    # ------------------------------------------------------------------ what viewers and the bench read
+    @abc.abstractmethod
+    def mujoco_view(self, env_id: int = 0) -> MujocoView:
+        """Env `env_id` as a MuJoCo model and MjData to draw, with every setter edit applied. The model is
+        the same on every call; the data holds the state at the time of the call (call again after a step
+        or a setter). Read it, never step it: it may be the engine's own."""
+
+    def close(self) -> None:
+        """Release what the engine holds besides memory (the MuJoCo engine's worker threads); nothing here."""
+        return None
+
+    def raw_rollout(self) -> RawRollout | None:
+        """Raw `mujoco.rollout` over this engine's own compiled model and its envs' current states: the
+        baseline `mimickit bench` times env steps against. None for an engine without one."""
+        return None
+
+    def _check_view_env(self, env_id: int) -> int:
+        if not self._sim_initialized():
+            raise MimicKitError("mujoco_view: the simulation is not initialized yet")
+        if not 0 <= int(env_id) < self._num_envs:
+            raise MimicKitError(f"mujoco_view: env {env_id} is out of range (the engine has {self._num_envs} envs)")
+        return int(env_id)
 
     # ------------------------------------------------------------------ state getters (live [N, ...] views)
     @abc.abstractmethod

@@ -45,6 +45,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -53,8 +54,20 @@ import torch
 from mimickit.anim.kin_char_model import JointType, KinCharModel
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.mjcf_loader import compile_spec, load_mjcf_spec
-from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, ObjType, ball_cone_angle
+from mimickit.engines.engine import (
+    ControlMode,
+    Engine,
+    EngineConfig,
+    EnvIds,
+    MujocoView,
+    ObjType,
+    ViewObject,
+    ball_cone_angle,
+)
 from mimickit.util import torch_util as tu
+
+if TYPE_CHECKING:
+    from mimickit.engines.bench_util import RawRollout
 
 FLOOR_NAME = "floor"
 
@@ -356,6 +369,7 @@ class MujocoEngine(Engine):
         self._pool: ThreadPoolExecutor | None = None
         self._chunks: list[slice] = []  # env rows per worker thread, set by initialize_sim
         self._sim_time = 0.0
+        self._view_objects: tuple[ViewObject, ...] | None = None  # mujoco_view's, built on its first call
 
     def get_name(self) -> str:
         return "mujoco"
@@ -923,6 +937,25 @@ class MujocoEngine(Engine):
             return np.arange(self._num_envs)
         return np.asarray(_to_numpy(env_ids), dtype=np.int64).reshape(-1)
 
+    # ------------------------------------------------------------------ viewers and the bench
+    def mujoco_view(self, env_id: int = 0) -> MujocoView:
+        """The engine's own model and env `env_id`'s live MjData, with pending setter edits pushed (as any
+        getter does): no copy, so drawing costs the simulation nothing."""
+        i = self._check_view_env(env_id)
+        self._sync()
+        if self._view_objects is None:
+            self._view_objects = tuple(
+                ViewObject(rec.name, rec.is_visual, _read_only(lay.body_ids))
+                for rec, lay in zip(self._env_objs[0], self._layouts, strict=True)
+            )
+        return MujocoView(self.mj_model, self.mj_datas[i], self._view_objects)
+
+    def raw_rollout(self) -> RawRollout:
+        """`mujoco.rollout` on the engine's threads over its model, from copies of the envs' current states."""
+        from mimickit.engines.bench_util import RawRollout  # mujoco.rollout: only for the bench
+
+        return RawRollout(self.mj_model, self.mj_datas, self.num_threads, self._config.substeps)
+
     # ------------------------------------------------------------------ replay (benchmarks)
     def physics_state(self) -> tuple[np.ndarray, np.ndarray]:
         """What each env's next step starts from, to replay it elsewhere (`mujoco.rollout`): full-physics
@@ -1078,6 +1111,12 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a = a.copy()
+    a.setflags(write=False)
+    return a
 
 
 def _to_numpy(x: object) -> np.ndarray:

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -46,9 +47,12 @@ import torch
 
 from mimickit.anim.kin_char_model import JointType, KinCharModel
 from mimickit.anim.mjcf_char_model import load_char_model
-from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, ObjType
+from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, MujocoView, ObjType
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
+
+if TYPE_CHECKING:
+    from mimickit.engines.mujoco_mirror import MujocoMirror
 
 try:  # an optional extra: the builder reports a missing install with the command that fixes it
     import warp as wp
@@ -80,6 +84,7 @@ class _ObjRecord:
     enable_self_collisions: bool
     fix_root: bool
     disable_motors: bool
+    color: tuple[float, ...] | None = None  # not simulated: what `mujoco_view`'s MuJoCo copy draws with
 
     def signature(self) -> tuple:
         return (self.obj_type, self.asset_file, self.is_visual, self.enable_self_collisions, self.fix_root,
@@ -145,6 +150,7 @@ class NewtonEngine(Engine):
         self._wp_device = "cuda:0" if self._device.type == "cuda" else "cpu"
         self.model = None
         self._sim_time = 0.0
+        self._mirror: MujocoMirror | None = None  # mujoco_view's MuJoCo copy of the scene, built on first use
 
     def get_name(self) -> str:
         return "newton"
@@ -168,7 +174,10 @@ class NewtonEngine(Engine):
         disable_motors: bool = False,
     ) -> int:
         path = self._check_new_obj(env_id, asset_file)
-        rec = _ObjRecord(ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root, disable_motors)
+        rgb = None if color is None else tuple(float(c) for c in np.asarray(color).ravel())
+        rec = _ObjRecord(
+            ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root, disable_motors, rgb
+        )
         return self._add_obj(env_id, rec, start_pos, start_rot)
 
     def initialize_sim(self) -> None:
@@ -586,6 +595,21 @@ class NewtonEngine(Engine):
             for o, rows in self._sensor_rows:
                 self._states[o].t["ground_contact_forces"].copy_(ground[rows])
                 self._states[o].t["contact_forces"].copy_(total[rows])
+
+    # ------------------------------------------------------------------ viewers
+    def mujoco_view(self, env_id: int = 0) -> MujocoView:
+        """Env `env_id` in a MuJoCo copy of the scene posed from this engine's state (`MujocoMirror`):
+        SolverMuJoCo's own `mj_model` leaves out the geoms that do not collide, the whole reference character."""
+        i = self._check_view_env(env_id)
+        if self._mirror is None:
+            from mimickit.engines.mujoco_mirror import MirrorObject, MujocoMirror  # builds a MuJoCo model
+
+            self._mirror = MujocoMirror(self, [
+                MirrorObject(rec.obj_type, rec.asset_file, rec.name, rec.is_visual, rec.enable_self_collisions,
+                             rec.fix_root, pos, rot, rec.color, rec.disable_motors)
+                for rec, (pos, rot) in zip(self._env_objs[i], self._start_poses[i], strict=True)
+            ])  # fmt: skip
+        return self._mirror.view(i)
 
     # ------------------------------------------------------------------ getters
     def _get(self, obj_id: int, key: str) -> torch.Tensor:

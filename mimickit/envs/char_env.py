@@ -92,6 +92,10 @@ class CharEnv(SimEnv):
     def get_char_id(self) -> int:
         return self._char_id
 
+    def get_ref_char_id(self) -> int | None:
+        """The object id of the visual reference character (the "ghost") viewers draw, None without one."""
+        return None
+
     # ------------------------------------------------------------- internals
     def _reset_envs(self, env_ids: torch.Tensor) -> None:
         super()._reset_envs(env_ids)

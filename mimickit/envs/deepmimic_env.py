@@ -93,6 +93,9 @@ class DeepMimicEnv(CharEnv):
     def reward_weights(self) -> dict[str, float]:
         return dict(self._reward_weights)
 
+    def get_ref_char_id(self) -> int | None:
+        return self._ref_char_id if self._enable_ref_char else None
+
     def get_motion_time(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
         t = self._time_buf + self._motion_time_offsets
         return t if env_ids is None else t.index_select(0, env_ids)
@@ -106,6 +109,19 @@ class DeepMimicEnv(CharEnv):
         super().set_mode(mode)
         self._tracking_sum: dict[str, float] = {}
         self._tracking_count = 0
+        self._episode_ends = torch.zeros(len(DoneFlags), dtype=torch.long, device=self.device)
+
+    def step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        out = super().step(action)
+        if self._mode == EnvMode.TEST:  # why each test episode ended, beside its tracking errors
+            self._episode_ends += torch.bincount(out[2].long(), minlength=len(DoneFlags))
+        return out
+
+    def episode_end_summary(self) -> dict[str, int]:
+        """Episodes that ended since the env entered TEST mode, by DoneFlags: {"fail", "succ", "time"}."""
+        ends = getattr(self, "_episode_ends", None)
+        counts = [0] * len(DoneFlags) if ends is None else ends.tolist()
+        return {f.name.lower(): counts[f] for f in DoneFlags if f != DoneFlags.NULL}
 
     def record_diagnostics(self) -> dict[str, float]:
         return self.tracking_summary() if self.config.log_tracking_error else {}

@@ -50,8 +50,7 @@ def run_bench(
     with torch.inference_mode():  # as in a training rollout: no autograd bookkeeping
         for _ in range(warmup):
             one_step()
-        # Raw MuJoCo rollout needs the MuJoCo engine's own model and data; other engines report env figures only.
-        raw = _raw_rollout(engine, substeps) if hasattr(engine, "mj_datas") else None
+        raw = engine.raw_rollout()  # None for an engine without a raw MuJoCo baseline: env figures only
         replay = raw is not None and raw_mode == "replay"
         if replay and engine.config.control_mode == ControlMode.pd_explicit:
             raise MimicKitError("--raw replay needs controls held over a step; pd_explicit recomputes them per substep")
@@ -65,7 +64,7 @@ def run_bench(
                 if replay:
                     t_raw = sum(raw.replay(*r) for r in record)
                 else:
-                    t_raw = sum(raw.step(np.zeros((num_envs, engine.mj_model.nu))) for _ in range(n))
+                    t_raw = sum(raw.step(np.zeros((num_envs, raw.model.nu))) for _ in range(n))
                 raw_time += t_raw
                 ratios.append(t_raw / t_env)
         if raw is not None:
@@ -119,14 +118,6 @@ def _timed_steps(one_step: Callable[[], None], n: int, engine: Any | None) -> tu
         elapsed += time.perf_counter() - start
         record.append((state, warm, engine.get_ctrl()))
     return elapsed, record
-
-
-def _raw_rollout(engine: Any, substeps: int) -> Any:
-    """Raw `mujoco.rollout` on all cores over the engine's own compiled model and its envs' current
-    states, one call per control step of `substeps` physics steps (state fed back)."""
-    from mimickit.engines.bench_util import RawRollout
-
-    return RawRollout(engine.mj_model, engine.mj_datas, engine.num_threads, substeps)
 
 
 def format_bench(result: dict[str, Any]) -> str:

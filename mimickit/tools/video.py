@@ -6,9 +6,10 @@ Both sources run through the project's own envs, so a video shows exactly what t
   actions; the env is built with `visualize=True`, so the DeepMimic env adds its reference character,
   which is drawn translucent as a ghost. An episode that ends is reset at once, as in testing.
 
-The camera follows the character's root in the ground plane at a fixed height (spec §5.9 `track`),
-centred between character and ghost when there is one. Rendering needs an offscreen OpenGL: EGL, else
-OSMesa (`select_gl_backend`).
+Either engine: frames are rendered from the engine's `mujoco_view` (its MuJoCo model of the scene and
+env 0's MjData), with the character and the ghost found by the env's object ids. The camera follows the
+character's root in the ground plane at a fixed height (spec §5.9 `track`), centred between character
+and ghost when there is one. Rendering needs an offscreen OpenGL: EGL, else OSMesa (`select_gl_backend`).
 """
 
 from __future__ import annotations
@@ -39,7 +40,6 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
 
 GL_BACKENDS = ("egl", "osmesa")
-GHOST_TAG = "_reference/"  # DeepMimicEnv's visual reference object is named "reference"
 GHOST_ALPHA = 0.4
 CAMERA_DISTANCE = 3.0  # m: a standing humanoid fills about half the frame height
 CAMERA_DISTANCE_GHOST = 4.5  # m: character and ghost (2 m apart in the humanoid configs) fit a 4:3 frame
@@ -170,13 +170,7 @@ def _add_floor_grid(scene: mujoco.MjvScene, centre: np.ndarray) -> None:
             scene.ngeom += 1
 
 
-def body_ids(model: mujoco.MjModel, tag: str) -> list[int]:
-    """Bodies whose name contains `tag` (the engine prefixes each object's bodies with `<i>_<name>/`)."""
-    names = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(model.nbody))
-    return [b for b, n in enumerate(names) if tag in n]
-
-
-def make_ghost(model: mujoco.MjModel, bodies: list[int], alpha: float = GHOST_ALPHA) -> None:
+def make_ghost(model: mujoco.MjModel, bodies: np.ndarray, alpha: float = GHOST_ALPHA) -> None:
     """Draw the geoms of `bodies` translucent (rendering only: the ghost has no collisions anyway)."""
     geoms = np.flatnonzero(np.isin(model.geom_bodyid, bodies))
     model.geom_rgba[geoms, 3] = np.minimum(model.geom_rgba[geoms, 3], alpha)
@@ -247,12 +241,12 @@ def motion_video(motion_file: str | Path, char_file: str | Path, out: str | Path
     engine_cfg = load_config(EngineConfig, PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml")
     env = ViewMotionEnv(env_cfg, engine_cfg, 1, "cpu")
     try:
-        model = env.engine.mj_model
-        char = body_ids(model, "_character/")
+        view = env.engine.mujoco_view(0)
+        model, char = view.model, view.objects[env.get_char_id()].body_ids
         model.geom_rgba[np.isin(model.geom_bodyid, char), :3] = CHAR_COLOR  # the policy video's colour
         fps = 1.0 / env.engine.get_timestep()
         frames = _motion_frames(
-            env, TrackingRenderer(model, opts.width, opts.height, char[0], None), opts.num_frames(fps)
+            env, TrackingRenderer(model, opts.width, opts.height, int(char[0]), None), opts.num_frames(fps)
         )
         return _record(out, frames, fps, opts, backend)
     finally:
@@ -285,17 +279,16 @@ def policy_video(
     seed_everything(args, 0)  # same seed, same start time in the clip, same video
     env = build_env(env_file, engine_file, 1, "cpu", visualize=True)  # visualize: the env adds the ghost
     try:
-        model = getattr(env.engine, "mj_model", None)
-        if model is None:
-            raise MimicKitError(f"{engine_file or env_file}: video rendering needs the MuJoCo engine")
         agent = build_agent(agent_file, env, "cpu", verbose=False)
         agent.load(model_file)
         agent.eval()
         agent.set_mode(AgentMode.TEST)  # the env in test mode too, as `mimickit test`
-        char = body_ids(model, "_character/")
-        ghost = body_ids(model, GHOST_TAG)
+        view, ghost_id = env.engine.mujoco_view(0), env.get_ref_char_id()
+        model, char = view.model, view.objects[env.get_char_id()].body_ids
+        ghost = view.objects[ghost_id].body_ids if ghost_id is not None else np.zeros(0, dtype=np.int64)
         make_ghost(model, ghost)
-        renderer = TrackingRenderer(model, opts.width, opts.height, char[0], ghost[0] if ghost else None)
+        ghost_root = int(ghost[0]) if len(ghost) else None
+        renderer = TrackingRenderer(model, opts.width, opts.height, int(char[0]), ghost_root)
         fps = 1.0 / env.engine.get_timestep()
         return _record(out, _policy_frames(env, agent, renderer, opts.num_frames(fps)), fps, opts, backend)
     finally:
@@ -317,7 +310,5 @@ def _policy_frames(env: CharEnv, agent: BaseAgent, renderer: TrackingRenderer, n
 
 
 def _synced(env: CharEnv) -> mujoco.MjData:
-    """Env 0's MjData with every pose the env has set: the engine pushes pending setter edits (the ghost's
-    pose, a reset) into its MjData on the next getter call."""
-    env.engine.get_root_pos(env.get_char_id())
-    return env.engine.mj_datas[0]
+    """Env 0's MjData with every pose the env has set (the ghost's pose, a reset): the engine's view."""
+    return env.engine.mujoco_view(0).data
