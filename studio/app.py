@@ -29,6 +29,7 @@ from studio.api import checkpoints as checkpoints_api
 from studio.api import library as library_api
 from studio.api import runs as runs_api
 from studio.api import scene as scene_api
+from studio.api import stream as stream_api
 from studio.clip_pose import pose_clip
 from studio.library import Library
 from studio.player import Player
@@ -173,7 +174,7 @@ def create_app(settings: Settings) -> FastAPI:
     hosts = HostPolicy(settings.host, settings.allowed_hosts)
     app.add_middleware(RequestGuard, hosts=hosts, token=settings.token if settings.needs_token else None)
 
-    for module in (library_api, scene_api, runs_api, checkpoints_api):
+    for module in (library_api, scene_api, runs_api, checkpoints_api, stream_api):
         app.include_router(module.router, prefix="/api")
     _add_error_handlers(app)
     close_proxy = add_scene_proxy(app, lambda: studio.viser_port)

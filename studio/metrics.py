@@ -17,9 +17,11 @@ from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
+import anyio.to_thread
+
 from mimickit.run_folder import METRICS_FILE
 
-__all__ = ["METRICS_FILE", "follow_rows", "last_rows", "read_rows"]
+__all__ = ["METRICS_FILE", "RowReader", "follow_rows", "last_rows", "read_rows"]
 HEARTBEAT_S = 15.0
 TAIL_BYTES = 256 * 1024
 
@@ -73,31 +75,51 @@ def _token(v: float) -> str:
     return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
 
 
+class RowReader:
+    """The rows a growing `metrics.jsonl` gained since the last `read()`: (index, row) pairs, a half-written
+    last line kept for the next call. Blocking file I/O: call it from a worker thread in async code."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._pos, self._index, self._pending = 0, 0, b""
+
+    def read(self) -> list[tuple[int, dict[str, Any]]]:
+        chunk = b""
+        if self.path.is_file():
+            with self.path.open("rb") as f:
+                f.seek(self._pos)
+                chunk = f.read()
+            self._pos += len(chunk)
+        self._pending += chunk
+        *lines, self._pending = self._pending.split(b"\n")
+        out = []
+        for line in lines:
+            row = _parse(line)
+            if row is not None:
+                out.append((self._index, row))
+                self._index += 1
+        return out
+
+
 async def follow_rows(
     path: Path, finished: Callable[[], bool], start: int = 0, poll_s: float = 0.25
 ) -> AsyncIterator[tuple[int, dict[str, Any]] | None]:
     """Yield (index, row) for each row as it is written, `None` as a heartbeat when idle; end once the
-    run has finished and the file holds nothing more."""
-    pos, index, pending = 0, 0, b""
+    run has finished and the file holds nothing more. The file and `finished` (SQLite) are read in a
+    worker thread: an event loop serving every stream and request must not wait on the disk."""
+    reader = RowReader(path)
+
+    def poll() -> tuple[bool, list[tuple[int, dict[str, Any]]]]:
+        done = finished()  # read before the file, so rows written just before the end are not lost
+        return done, reader.read()
+
     idle = 0.0
     while True:
-        done = finished()  # read before the file, so rows written just before the end are not lost
-        chunk = b""
-        if path.is_file():
-            with path.open("rb") as f:
-                f.seek(pos)
-                chunk = f.read()
-            pos += len(chunk)
-        pending += chunk
-        *lines, pending = pending.split(b"\n")
-        for line in lines:
-            row = _parse(line)
-            if row is None:
-                continue
+        done, rows = await anyio.to_thread.run_sync(poll)
+        for index, row in rows:
             if index >= start:
                 yield index, row
-            index += 1
-        if chunk:
+        if rows:
             idle = 0.0
             continue
         if done:

@@ -58,7 +58,7 @@ def resolve_arg_file(path: str, settings: Settings) -> Path:
     return confine(path, [*settings.arg_dirs, *settings.readable_roots])
 
 
-def _run_json(run: Run) -> dict[str, Any]:
+def run_json(run: Run) -> dict[str, Any]:
     d = run.to_json()
     folder = RunFolder(run.out_dir) if run.out_dir else None
     d["checkpoint"] = str(folder.model_file) if folder and folder.model_file.is_file() else None
@@ -69,7 +69,7 @@ def _run_json(run: Run) -> dict[str, Any]:
 
 @router.get("")
 def list_runs(request: Request) -> list[dict[str, Any]]:
-    return [_run_json(r) for r in studio_of(request).registry.list()]
+    return [run_json(r) for r in studio_of(request).registry.list()]
 
 
 @router.post("", status_code=201)
@@ -88,18 +88,18 @@ def launch(body: LaunchRun, request: Request) -> dict[str, Any]:
         if getattr(body, key) is not None:
             config[key] = getattr(body, key)
     name = body.name or f"{arg_file.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-    return _run_json(studio.runs.submit(name, config))
+    return run_json(studio.runs.submit(name, config))
 
 
 @router.get("/{run_id}")
 def get_run(run_id: int, request: Request) -> dict[str, Any]:
-    return _run_json(studio_of(request).runs.get(run_id))
+    return run_json(studio_of(request).runs.get(run_id))
 
 
 @router.post("/{run_id}/stop")
 def stop(run_id: int, request: Request) -> dict[str, Any]:
     """SIGTERM: the trainer writes its checkpoint and exits; the run becomes `stopped`."""
-    return _run_json(studio_of(request).runs.stop(run_id))
+    return run_json(studio_of(request).runs.stop(run_id))
 
 
 @router.post("/{run_id}/resume")
@@ -107,13 +107,13 @@ def resume(run_id: int, request: Request, body: ResumeRun | None = None) -> dict
     """A new process in the same run folder with `--model_file <out_dir>/model.pt`; `max_samples` sets
     a new budget (needed to continue a run that reached its budget). The trainer marks the resume with a
     `{"event": "resume"}` row in metrics.jsonl."""
-    return _run_json(studio_of(request).runs.resume(run_id, body.max_samples if body else None))
+    return run_json(studio_of(request).runs.resume(run_id, body.max_samples if body else None))
 
 
 @router.post("/{run_id}/again", status_code=201)
 def again(run_id: int, request: Request) -> dict[str, Any]:
     """A new run with the same arg file and overrides, and the seed this run used (from its args.json)."""
-    return _run_json(studio_of(request).runs.again(run_id))
+    return run_json(studio_of(request).runs.again(run_id))
 
 
 @router.delete("/{run_id}", status_code=204)

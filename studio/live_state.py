@@ -1,0 +1,191 @@
+"""What `GET /api/stream` pushes, read off the event loop: one watcher per server samples the scene
+(10 times a second) and the run list (once a second) in a worker thread while at least one stream is
+open, and wakes the streams when either changed, compared by content. Nothing is sampled while no
+stream is open. Each stream's own part (a rollout's new history rows, one run's new metrics rows and
+log lines) is read by the followers below, also in a worker thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import uuid
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import anyio.to_thread
+
+from studio.metrics import RowReader
+
+LOG = logging.getLogger("studio")
+SCENE_PERIOD_S = 0.1
+RUNS_EVERY = 10  # scene periods: the run list is read once a second
+ROLLOUT_BACKLOG_ROWS = 600  # 20 s at 30 Hz: what a new stream gets of the rollout's history (the plot shows 10 s)
+LOG_BACKLOG_LINES = 200
+LOG_TAIL_BYTES = 64 * 1024
+METRICS_BATCH_ROWS = 500  # one event carries at most this many rows (a long run's backlog is several events)
+RUN_VOLATILE_KEYS = ("duration_s",)  # grows with the clock, not a change of the run: left out of the stream
+
+
+@dataclass
+class Versioned:
+    """A value and a counter that grows each time the value's content changes."""
+
+    value: Any = None
+    version: int = 0
+    _key: str | None = None
+
+    def update(self, value: Any) -> bool:
+        key = json.dumps(value, sort_keys=True, default=str)
+        if key == self._key:
+            return False
+        self.value, self._key, self.version = value, key, self.version + 1
+        return True
+
+
+class LiveState:
+    """The scene's snapshot and the run list, sampled while someone listens (`subscribe`)."""
+
+    def __init__(self, read_scene: Callable[[], dict[str, Any] | None], read_runs: Callable[[], list[dict]]) -> None:
+        self.server_id = uuid.uuid4().hex  # a new one per server start: the page sees a restart
+        self.scene = Versioned()
+        self.runs = Versioned()
+        self._read_scene, self._read_runs = read_scene, read_runs
+        self._listeners = 0
+        self._task: asyncio.Task | None = None
+        self._changed = asyncio.Event()
+
+    @contextlib.asynccontextmanager
+    async def subscribe(self) -> AsyncIterator[None]:
+        """While inside, the watcher runs; the first listener waits for one fresh sample."""
+        self._listeners += 1
+        try:
+            if self._task is None or self._task.done():
+                await self._sample(runs=True)
+                self._task = asyncio.get_running_loop().create_task(self._watch())
+            yield
+        finally:
+            self._listeners -= 1
+            if self._listeners == 0 and self._task is not None:
+                self._task.cancel()
+                self._task = None
+
+    async def wait(self, seen: tuple[int, int], timeout: float) -> None:
+        """Until the scene or the run list is newer than `seen` (versions), or `timeout` seconds."""
+        if (self.scene.version, self.runs.version) != seen:
+            return
+        event = self._changed
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(event.wait(), timeout)
+
+    async def _watch(self) -> None:
+        tick = 0
+        while True:
+            await asyncio.sleep(SCENE_PERIOD_S)
+            tick += 1
+            await self._sample(runs=tick % RUNS_EVERY == 0)
+
+    async def _sample(self, *, runs: bool) -> None:
+        def read() -> tuple[bool, bool]:
+            scene_changed = self.scene.update(_guarded(self._read_scene, "the scene state", self.scene.value))
+            runs_changed = runs and self.runs.update(_guarded(self._read_runs, "the run list", self.runs.value))
+            return scene_changed, runs_changed
+
+        if any(await anyio.to_thread.run_sync(read)):
+            # Wake every waiting stream at once; later waiters get a fresh event.
+            self._changed.set()
+            self._changed = asyncio.Event()
+
+
+def _guarded(read: Callable[[], Any], what: str, last: Any) -> Any:
+    """A failing read keeps the last value (and says so in the log): one bad sample must not end the
+    watcher, which every open page depends on."""
+    try:
+        return read()
+    except Exception as e:  # noqa: BLE001 - logged with its traceback; the stream goes on
+        LOG.warning("live state: reading %s failed", what, exc_info=e)
+        return last
+
+
+class RolloutFollower:
+    """A rollout's history rows not sent yet; starts again (`reset`) when another rollout, a reloaded
+    checkpoint or a new episode numbering (step going back) appears."""
+
+    def __init__(self) -> None:
+        self._shown: tuple[int, Any, Any] | None = None
+        self._last_step = -1
+
+    def read(self, rollout_player: Any) -> dict[str, Any] | None:
+        if rollout_player is None:
+            self._shown = None
+            return None
+        snap = rollout_player.snapshot()["rollout"]
+        key = (id(rollout_player), snap.get("checkpoint"), snap.get("reloads"))
+        reset = key != self._shown or snap["step"] < self._last_step
+        if reset:
+            self._shown, self._last_step = key, -1
+        rows = rollout_player.history_rows(self._last_step, ROLLOUT_BACKLOG_ROWS)
+        if not rows and not reset:
+            return None
+        if rows:
+            self._last_step = rows[-1]["step"]
+        return {"reset": reset, "step": snap["step"], "reward_weights": snap.get("reward_weights"), "rows": rows}
+
+
+class LogFollower:
+    """New lines of a run's `console.log`: its last lines first, then what is appended; a file that
+    shrank or vanished (a deleted run) starts again."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._pos: int | None = None
+        self._pending = b""
+
+    def read(self) -> dict[str, Any] | None:
+        try:
+            size = self.path.stat().st_size
+        except OSError:
+            size = 0
+        reset = self._pos is None or size < self._pos
+        if reset:
+            start = max(0, size - LOG_TAIL_BYTES)
+            self._pos, self._pending = start, b""
+        elif size == self._pos:
+            return None
+        chunk = b""
+        if size:
+            with self.path.open("rb") as f:
+                f.seek(self._pos)
+                chunk = f.read(size - self._pos)
+        self._pos += len(chunk)
+        data = self._pending + chunk
+        *lines, self._pending = data.split(b"\n")
+        if reset and self._pos > len(chunk) and lines:
+            lines = lines[1:]  # the tail may start mid-line
+        text = [line.decode("utf-8", errors="replace").rstrip("\r") for line in lines]
+        if not text and not reset:
+            return None
+        return {"reset": reset, "lines": text[-LOG_BACKLOG_LINES:]}
+
+
+class MetricsFollower:
+    """A run's metrics rows not sent yet, in batches of at most `METRICS_BATCH_ROWS`."""
+
+    def __init__(self, path: Path) -> None:
+        self._reader = RowReader(path)
+        self._first = True
+
+    def read(self) -> list[dict[str, Any]]:
+        rows = self._reader.read()
+        batches = []
+        for i in range(0, len(rows), METRICS_BATCH_ROWS):
+            part = rows[i : i + METRICS_BATCH_ROWS]
+            batches.append({"reset": self._first and i == 0, "start": part[0][0], "rows": [r for _, r in part]})
+        if self._first and not batches:
+            batches.append({"reset": True, "start": 0, "rows": []})
+        self._first = False
+        return batches
