@@ -285,6 +285,10 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("--rand_seed", type=int, default=0, help="seed of the policy episode (start time in the clip)")
     video.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
     video.set_defaults(func=_video)
+
+    from mimickit.tools.evaluate import add_eval_parser
+
+    add_eval_parser(sub)
     return parser
 
 

@@ -131,11 +131,7 @@ def run(
         agent.load(model_file)
 
     if mode == "test":
-        episodes = args.parse_int("test_episodes", NO_LIMIT)
-        result: dict[str, Any] = agent.test_model(episodes).to_dict()
-        summary = getattr(env, "tracking_summary", dict)()
-        result["tracking"] = test_tracking(summary)
-        return result
+        return test_result(agent, env, args.parse_int("test_episodes", NO_LIMIT))
     return _train(args, argv, inputs, env_info, agent, base_seed, launch, resume)
 
 
@@ -197,6 +193,19 @@ def build_run_env(inputs: RunInputs, num_envs: int, device: str) -> tuple[Any, d
         "engine_name": engine_cfg.engine_name,
     }
     return build_env_from_configs(env_cfg, engine_cfg, num_envs, device, visualize=False), info
+
+
+def test_result(agent: Any, env: Any, episodes: int) -> dict[str, Any]:
+    """`mimickit test`'s result: the agent's test episodes (`test_model`), the env's tracking errors
+    (`test_tracking`) and how the episodes ended (`episode_ends`: fail / succ / time counts summed over
+    processes; empty for envs without a reference motion)."""
+    from mimickit.learning import mp_util
+
+    result: dict[str, Any] = agent.test_model(episodes).to_dict()
+    result["tracking"] = test_tracking(getattr(env, "tracking_summary", dict)())
+    ends = getattr(env, "episode_end_summary", dict)()
+    result["episode_ends"] = {k: int(mp_util.reduce_sum(v)) for k, v in ends.items()}
+    return result
 
 
 def test_tracking(summary: dict[str, float]) -> dict[str, float]:
