@@ -34,6 +34,7 @@ def default_output_root() -> Path:
     when installed (site-packages is no place for runs, and may be read-only)."""
     return Path.cwd() if INSTALLED else IMPORT_ROOT
 
+
 _data_dirs: list[Path] = []
 
 
