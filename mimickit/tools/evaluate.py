@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -122,8 +123,10 @@ def _check_clips(clips: list[EvalClip]) -> None:
     one is refused before anything runs, and a hostile one cannot hang or exhaust this process."""
     from mimickit.anim.motion import load_motion_guarded
 
-    for path in dict.fromkeys(c.path for c in clips):
-        load_motion_guarded(path)
+    with warnings.catch_warnings():  # a clip's warnings (NaN columns) come once, when its env loads it
+        warnings.simplefilter("ignore")
+        for path in dict.fromkeys(c.path for c in clips):
+            load_motion_guarded(path)
 
 
 def _eval_clip(inputs: Any, model_file: str, clip: EvalClip, num_envs: int, opts: EvalOptions) -> dict[str, Any]:
