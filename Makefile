@@ -50,8 +50,9 @@ format: setup
 
 # The Newton engine in its own venv: newton[sim] pins mujoco 3.17, the main venv keeps mujoco 4.
 # Same order as setup: the CPU torch wheel first. Runs the Newton engine and sim2sim tests on warp's
-# CPU device (the first run JIT-compiles the kernels into ~/.cache/warp), and the MuJoCo engine and env
-# tests once more, on mujoco 3.17.
+# CPU device (the first run JIT-compiles the kernels into ~/.cache/warp), the viewers' `mujoco_view` and a
+# Newton run rolled out, replayed, rendered and benched, and the MuJoCo engine and env tests once more, on
+# mujoco 3.17.
 setup-newton: $(NEWTON_STAMP)
 
 $(NEWTON_STAMP): pyproject.toml
@@ -63,4 +64,4 @@ $(NEWTON_STAMP): pyproject.toml
 
 test-newton: setup-newton
 	$(NEWTON_BIN)/python -m pytest -q tests/engines/test_newton_engine.py tests/engines/test_mujoco_engine.py \
-		tests/engines/test_ball_joints.py tests/envs
+		tests/engines/test_ball_joints.py tests/engines/test_mujoco_view.py tests/studio/test_newton_rollout.py tests/envs
