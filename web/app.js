@@ -1,5 +1,7 @@
 // The dashboard: library, clip player controls (driving the server's player), runs and live curves.
-// Everything goes through the REST API; the 3D scene is viser's page in the iframe.
+// Commands go through the REST API; what changes (scene state, rollout history, runs, the selected run's
+// metrics and log) is pushed by the server on one event stream (web/stream.js): no polling. The 3D
+// scene is viser's page in the iframe.
 "use strict";
 
 // ---------------------------------------------------------------- API access (token when required)
@@ -30,17 +32,62 @@ const el = (tag, attrs = {}, ...children) => {
 };
 
 // ---------------------------------------------------------------- start-up
-async function init() {
+let sceneUrl = null;
+async function loadHealth() {
   const health = await api("GET", "/api/health");
   $("health").textContent = `runs: ${health.runs_dir} · data: ${health.data_dirs.join(", ")}`;
-  // The scene is relayed by the studio itself (one port, one token check); the token's cookie lets
-  // viser's page open its websocket, which it does without the query string.
-  if (health.viser_port) $("scene").src = withToken(health.scene_url || "/scene/");
-  await loadLibrary();
-  await refreshRuns();
-  setInterval(refreshState, 250);
-  setInterval(refreshRuns, 2000);
+  sceneUrl = health.viser_port ? health.scene_url || "/scene/" : null;
 }
+
+// The scene is relayed by the studio itself (one port, one token check); the token's cookie lets
+// viser's page open its websocket, which it does without the query string. `reload` (a new server
+// after a restart): a fresh page, since viser's client would otherwise stay on the old, grey scene.
+let sceneLoads = 0;
+function showScene() {
+  if (!sceneUrl) return;
+  sceneLoads += 1;
+  const url = withToken(sceneUrl);
+  $("scene").src = sceneLoads === 1 ? url : `${url}${url.includes("?") ? "&" : "?"}reload=${sceneLoads}`;
+}
+
+async function init() {
+  await loadHealth();
+  showScene();
+  await loadLibrary();
+  refreshCheckpoints();
+  stream.open({});
+}
+
+// ---------------------------------------------------------------- the live stream, and the banner when it breaks
+let serverId = null;
+const stream = new StudioStream({
+  url: withToken,
+  handlers: {
+    scene: (s) => applyState(s),
+    rollout: (h) => rolloutView.addRows(h),
+    runs: (runs) => renderRuns(runs),
+    metrics: (m) => addMetrics(m),
+    log: (l) => addLog(l),
+  },
+  onDown: (attempt) => {
+    $("banner").hidden = false;
+    $("banner-detail").textContent = attempt > 1 ? `(attempt ${attempt})` : "";
+  },
+  onUp: async (hello, afterOutage) => {
+    $("banner").hidden = true;
+    const restarted = serverId !== null && hello.server !== serverId;
+    serverId = hello.server;
+    if (!afterOutage) return;
+    // Back after an outage: the stream re-sent the scene, runs and the selected run's rows; fetch what
+    // it does not carry (library, checkpoints) and give a restarted server's scene a fresh page.
+    try {
+      await loadHealth();
+      if (restarted) showScene();
+      await loadLibrary();
+      refreshCheckpoints();
+    } catch (e) { /* gone again: the stream's next error shows the banner */ }
+  },
+});
 
 // ---------------------------------------------------------------- library
 const library = { tab: "clips", clips: [], characters: [], configs: null };
@@ -135,32 +182,24 @@ function applyState(s) {
     ? `step ${s.rollout.shown.step} · ${s.time.toFixed(2)} s${s.rollout.live ? "" : ` · history ${s.frame}/${s.num_frames - 1}`}`
     : s.clip ? `${s.frame}/${s.num_frames - 1} · ${s.time.toFixed(2)} s` : "–";
   $("play").textContent = s.playing ? "Pause" : "Play";
+  if (pendingCommands > 0) return;  // a pushed state older than the click must not flip the controls back
   $("loop").checked = s.loop;
   $("follow").checked = s.follow;
   if (document.activeElement !== $("speed")) $("speed").value = String(s.speed);
 }
 
-async function refreshState() {
-  let s;
-  try { s = await api("GET", "/api/scene/state"); } catch (e) { return; /* scene off or server restarting */ }
-  applyState(s);
-  if (s.mode === "rollout") await rolloutView.poll();
-}
-
 // ---------------------------------------------------------------- live rollout (state lives on the server)
-// The reward-term plot is fed by /api/scene/rollout/history (each recorded step since the last poll).
+// The reward-term plot is fed by the stream's `rollout` events (each recorded step not sent yet).
 const rolloutView = {
-  plot: null, key: null, lastStep: -1,
+  plot: null, lastStep: -1,
   init() {
     this.plot = new LinePlot($("rollout-plot"), "rollout, last 10 s:",
       { window: 10, yRange: [0, 1], colors: { reward: "#ffffff" } });
     this.plot.draw();
   },
-  reset() { this.key = null; this.lastStep = -1; this.plot.clear(); },
+  reset() { this.lastStep = -1; this.plot.clear(); },
   apply(s) {
     const r = s.rollout;
-    const key = `${r.checkpoint}|${r.reloads}`;
-    if (key !== this.key || r.step < this.lastStep) { this.reset(); this.key = key; }
     const who = r.run_id !== null ? `run #${r.run_id} ${r.run_name || ""}` : r.checkpoint.split("/").slice(-2).join("/");
     const saved = new Date(r.checkpoint_mtime * 1000).toLocaleTimeString();
     const terms = Object.entries(r.reward_terms).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(" · ");
@@ -169,9 +208,8 @@ const rolloutView = {
     $("clip-label").textContent = `rollout of ${r.checkpoint} in ${r.env_config} (ghost: the reference clip)`;
     this.plot.marker = r.live ? null : s.time;
   },
-  async poll() {
-    let h;
-    try { h = await api("GET", `/api/scene/rollout/history?since=${this.lastStep}`); } catch (e) { return; }
+  addRows(h) {  // {reset, step, reward_weights, rows}: reset = another rollout, checkpoint or step numbering
+    if (h.reset) this.reset();
     for (const row of h.rows) {
       if (row.step <= this.lastStep) continue;
       this.plot.add("reward", row.time, row.reward);
@@ -196,7 +234,18 @@ async function loadRollout(body) {
   }
 }
 
-const playerCommand = async (path, body) => applyState(await api("POST", `/api/scene/${path}`, body));
+let pendingCommands = 0;
+async function playerCommand(path, body) {
+  pendingCommands += 1;
+  try {
+    const s = await api("POST", `/api/scene/${path}`, body);
+    pendingCommands -= 1;
+    applyState(s);
+  } catch (e) {
+    pendingCommands -= 1;
+    $("clip-label").textContent = `${path}: ${e.message}`;
+  }
+}
 $("play").addEventListener("click", () => playerCommand("toggle"));
 $("step").addEventListener("click", () => playerCommand("step", { frames: 1 }));
 $("timeline").addEventListener("input", (ev) => { scrubbing = true; playerCommand("seek", { frame: Number(ev.target.value) }); });
@@ -230,7 +279,6 @@ document.addEventListener("keydown", (ev) => {
 
 // ---------------------------------------------------------------- runs
 let selectedRun = null;
-let metricsSource = null;
 const plots = {};
 document.querySelectorAll("#curves canvas").forEach((c) => {
   plots[c.dataset.group] = new LinePlot(c, { returns: "return", lengths: "episode length", rewards: "reward terms", losses: "losses" }[c.dataset.group]);
@@ -271,64 +319,100 @@ $("launch").addEventListener("submit", async (ev) => {
   }
 });
 
+// After a user's action: the new list at once (the stream would bring it within a second).
 async function refreshRuns() {
-  let runs;
-  try { runs = await api("GET", "/api/runs"); } catch (e) { return; }
-  refreshCheckpoints();
-  // A run whose record did not change keeps its element (an ended run's never changes): no
-  // churn under the pointer; the list is re-laid only when an element was replaced.
-  const list = $("run-list");
-  const nodes = runs.slice().reverse().map((run) => {
-    const key = JSON.stringify(run);  // a running run's duration_s changes with every poll
-    const cached = runNodes.get(run.id);
-    if (cached && cached.key === key) return cached.node;
-    const node = runItem(run);
-    runNodes.set(run.id, { key, node });
-    return node;
-  });
-  const same = nodes.length === list.children.length && nodes.every((n, i) => list.children[i] === n);
-  if (!same) list.replaceChildren(...nodes);
-  for (const id of runNodes.keys()) if (!runs.some((r) => r.id === id)) runNodes.delete(id);
-  if (selectedRun !== null) updateConsole();
+  try { renderRuns(await api("GET", "/api/runs")); } catch (e) { /* the banner tells when the server is gone */ }
 }
-const runNodes = new Map();  // run id -> {key, node}
+
+// The run list, pushed by the stream when it changed: each run keeps its element, updated in place, so a
+// focused button keeps its focus and a click in flight lands; the list is re-laid only when runs came
+// or went. The checkpoint list is fetched again only when a run's checkpoint changed.
+const runNodes = new Map();  // run id -> {node, run, key, fields}
+let checkpointsKey = null;
+function renderRuns(runs) {
+  const list = $("run-list");
+  const nodes = runs.slice().reverse().map((run) => runNode(run));
+  // Insert and remove around the elements that stay: moving an element would take its focus away.
+  const keep = new Set(nodes);
+  for (const child of [...list.children]) if (!keep.has(child)) child.remove();
+  nodes.forEach((n, i) => { if (list.children[i] !== n) list.insertBefore(n, list.children[i] || null); });
+  for (const id of runNodes.keys()) if (!runs.some((r) => r.id === id)) runNodes.delete(id);
+  const key = JSON.stringify(runs.map((r) => [r.id, r.checkpoint, r.checkpoint_mtime ?? null]));
+  if (checkpointsKey !== null && key !== checkpointsKey) refreshCheckpoints();
+  checkpointsKey = key;
+}
 
 const ENDED = ["finished", "stopped", "diverged", "failed", "interrupted"];
 const num = (v) => (v === null || v === undefined ? "–" : Number(v).toLocaleString("en-US"));
 const duration = (s) => (s === null || s === undefined ? "–" : s < 60 ? `${s.toFixed(0)} s` : s < 3600 ? `${(s / 60).toFixed(1)} min` : `${(s / 3600).toFixed(2)} h`);
 
-// One run, from its folder (run.summary): what it trains, how far, at what rate, with which seed, how it ended.
-function runItem(run) {
-  const act = (label, fn, enabled = true) => {
-    const b = el("button", { "data-action": label.toLowerCase(), onclick: (ev) => { ev.stopPropagation(); fn(); } }, label);
-    b.disabled = !enabled;
-    return b;
-  };
+function runNode(run) {
+  let entry = runNodes.get(run.id);
+  if (!entry) { entry = buildRunNode(run); runNodes.set(run.id, entry); }
+  entry.run = run;
+  const { duration_s, ...content } = run;  // GET /api/runs has the clock-driven duration; the stream does not
+  const key = JSON.stringify(content);
+  if (key !== entry.key) { entry.key = key; updateRunNode(entry); }
+  return entry.node;
+}
+
+// One run's element; its buttons act on the run's latest record (entry.run).
+function buildRunNode(run) {
+  const entry = { run, key: null, fields: {} };
+  const f = entry.fields;
+  const field = (name) => (f[name] = el("span", { "data-field": name }));
+  const act = (label, fn) => (f[label] = el("button", { "data-action": label.toLowerCase(), onclick: (ev) => { ev.stopPropagation(); fn(entry.run); } }, label));
+  f.title = el("span", {});
+  f.progress = el("progress", { "data-field": "progress" });
+  f.reason = el("div", { class: "meta reason", "data-field": "reason" });
+  f.resumes = el("span", {});
+  entry.node = el("div", { class: "item", "data-run-id": run.id, onclick: () => selectRun(run.id) },
+    el("div", {}, f.title, " ", field("status")),
+    el("div", { class: "meta" }, field("clip"), " on ", field("char"), " · ", field("envs"), " · seed ", field("seed")),
+    el("div", { class: "meta" }, f.progress, " ", field("samples")),
+    el("div", { class: "meta" }, field("elapsed"), " · ", field("rate"), " · test return ", field("test-return"), f.resumes),
+    f.reason,
+    el("div", { class: "actions" },
+      act("Stop", (r) => runAction(r, "stop")),
+      act("Continue", (r) => continueRun(r)),
+      act("Again", (r) => runAction(r, "again")),
+      act("Rollout", (r) => loadRollout({ run_id: r.id })),
+      act("Inspect", (r) => inspectCheckpoint(r.checkpoint)),
+      act("Delete", (r) => deleteRun(r))));
+  return entry;
+}
+
+// What the run's folder says (run.summary): what it trains, how far, at what rate, with which seed, how it ended.
+function updateRunNode({ run, node, fields: f }) {
   const s = run.summary || {};
   const active = ["running", "stopping", "queued"].includes(run.status);
   const ended = ENDED.includes(run.status);
-  const field = (name, text) => el("span", { "data-field": name }, text);
-  const clip = s.motion_file ? `${s.dataset ? "dataset " : ""}${s.motion_file.split("/").pop()}` : run.config.arg_file.split("/").pop();
+  const set = (e, text) => { if (e.textContent !== text) e.textContent = text; };
+  node.classList.toggle("selected", run.id === selectedRun);
+  set(f.title, `#${run.id} ${run.name}`);
+  set(f.status, run.status);
+  f.status.className = `status ${run.status}`;
+  set(f.clip, s.motion_file ? `${s.dataset ? "dataset " : ""}${s.motion_file.split("/").pop()}` : run.config.arg_file.split("/").pop());
+  set(f.char, s.char_file ? s.char_file.split("/").pop() : "–");
+  set(f.envs, `${num(s.num_envs ?? run.config.num_envs)} envs`);
+  set(f.seed, num(s.seed));
   const budget = s.max_samples ?? run.config.max_samples ?? null;
-  const progress = el("progress", { "data-field": "progress", max: String(budget || 1), value: String(budget ? Math.min(s.samples || 0, budget) : 0) });
-  if (!budget) progress.removeAttribute("value");  // no budget: an indeterminate bar
-  const item = el("div", { class: `item${run.id === selectedRun ? " selected" : ""}`, "data-run-id": run.id, onclick: () => selectRun(run.id) },
-    el("div", {}, `#${run.id} ${run.name} `, el("span", { class: `status ${run.status}`, "data-field": "status" }, run.status)),
-    el("div", { class: "meta" }, field("clip", clip), " on ", field("char", s.char_file ? s.char_file.split("/").pop() : "–"),
-      " · ", field("envs", `${num(s.num_envs ?? run.config.num_envs)} envs`), " · seed ", field("seed", num(s.seed))),
-    el("div", { class: "meta" }, progress, " ", field("samples", `${num(s.samples)} / ${budget ? num(budget) : "no limit"} samples`)),
-    el("div", { class: "meta" }, field("elapsed", duration(s.elapsed_s)), " · ", field("rate", `${s.samples_per_s ? s.samples_per_s.toFixed(0) : "–"} samples/s`),
-      " · test return ", field("test-return", s.test_return !== null && s.test_return !== undefined ? s.test_return.toFixed(2) : "–"),
-      s.resumes ? ` · resumed ${s.resumes}×` : ""),
-    ...(run.reason ? [el("div", { class: "meta reason", "data-field": "reason" }, run.reason)] : []),
-    el("div", { class: "actions" },
-      act("Stop", () => runAction(run, "stop"), active && run.status !== "stopping"),
-      act("Continue", () => continueRun(run, budget, s.samples), ended && !!run.checkpoint),
-      act("Again", () => runAction(run, "again"), s.seed !== null && s.seed !== undefined),
-      act("Rollout", () => loadRollout({ run_id: run.id }), !!run.checkpoint),
-      act("Inspect", () => inspectCheckpoint(run.checkpoint), !!run.checkpoint),
-      act("Delete", () => deleteRun(run), !active)));
-  return item;
+  f.progress.max = budget || 1;
+  if (budget) f.progress.value = Math.min(s.samples || 0, budget);
+  else f.progress.removeAttribute("value");  // no budget: an indeterminate bar
+  set(f.samples, `${num(s.samples)} / ${budget ? num(budget) : "no limit"} samples`);
+  set(f.elapsed, duration(s.elapsed_s));
+  set(f.rate, `${s.samples_per_s ? s.samples_per_s.toFixed(0) : "–"} samples/s`);
+  set(f["test-return"], s.test_return !== null && s.test_return !== undefined ? s.test_return.toFixed(2) : "–");
+  set(f.resumes, s.resumes ? ` · resumed ${s.resumes}×` : "");
+  set(f.reason, run.reason || "");
+  f.reason.hidden = !run.reason;
+  f.Stop.disabled = !(active && run.status !== "stopping");
+  f.Continue.disabled = !(ended && !!run.checkpoint);
+  f.Again.disabled = !(s.seed !== null && s.seed !== undefined);
+  f.Rollout.disabled = !run.checkpoint;
+  f.Inspect.disabled = !run.checkpoint;
+  f.Delete.disabled = active;
 }
 
 // POSTs carry a JSON body (the server refuses cross-site form posts).
@@ -341,7 +425,9 @@ async function runAction(run, action, body = {}) {
 }
 
 // Continue: resume from the checkpoint with a budget (total samples); a run that reached its budget needs a larger one.
-function continueRun(run, budget, samples) {
+function continueRun(run) {
+  const s = run.summary || {};
+  const budget = s.max_samples ?? run.config.max_samples ?? null, samples = s.samples;
   const suggested = budget && samples >= budget ? 2 * budget : budget || "";
   const answer = prompt(`Continue run #${run.id} up to how many samples in all? (trained: ${num(samples)})`, String(suggested));
   if (answer === null) return;
@@ -351,21 +437,42 @@ function continueRun(run, budget, samples) {
 async function deleteRun(run) {
   if (!confirm(`Delete run #${run.id} "${run.name}" and its folder ${run.out_dir}?`)) return;
   try { await api("DELETE", `/api/runs/${run.id}`); } catch (e) { alert(e.message); }
-  if (selectedRun === run.id) { selectedRun = null; if (metricsSource) metricsSource.close(); }
+  if (selectedRun === run.id) {
+    selectedRun = null;
+    $("curves-title").textContent = "Curves";
+    $("console").textContent = "";
+    stream.open({});
+  }
   refreshRuns();
 }
 
-// Live curves: an EventSource on the run's metrics stream; each event is one metrics.jsonl row.
+// Live curves and console: the stream, subscribed to the selected run, pushes its metrics rows and log lines.
 function selectRun(id) {
+  if (id === selectedRun) return;
   selectedRun = id;
-  if (metricsSource) metricsSource.close();
-  Object.values(plots).forEach((p) => p.clear());
+  Object.values(plots).forEach((p) => { p.clear(); p.draw(); });
+  $("console").textContent = "";
   $("curves-title").textContent = `Curves · run #${id}`;
-  metricsSource = new EventSource(withToken(`/api/runs/${id}/metrics`));
-  metricsSource.onmessage = (ev) => addRow(JSON.parse(ev.data));
-  metricsSource.addEventListener("end", () => metricsSource.close());
   document.querySelectorAll("#run-list .item").forEach((e) => e.classList.toggle("selected", Number(e.dataset.runId) === id));
-  updateConsole();
+  stream.open({ run: id });
+}
+
+// {run, reset, start, rows}: the first batch of a connection has reset (the rows start again from 0).
+function addMetrics(m) {
+  if (m.run !== selectedRun) return;
+  if (m.reset) Object.values(plots).forEach((p) => p.clear());
+  m.rows.forEach(addRow);
+  if (!m.rows.length) Object.values(plots).forEach((p) => p.draw());
+}
+
+const CONSOLE_LINES = 200;
+function addLog(l) {  // {run, reset, lines}
+  if (l.run !== selectedRun) return;
+  const box = $("console");
+  const stick = box.scrollTop + box.clientHeight >= box.scrollHeight - 4;  // follow the end unless scrolled up
+  const lines = (l.reset || !box.textContent ? [] : box.textContent.split("\n")).concat(l.lines);
+  box.textContent = lines.slice(-CONSOLE_LINES).join("\n");
+  if (stick) box.scrollTop = box.scrollHeight;
 }
 
 let redrawPending = false;
@@ -458,14 +565,6 @@ function renderInspection(c) {
   box.replaceChildren(lines.join("\n"));
   if (c.nonfinite_message) box.append("\n", el("span", { class: "misfit error", "data-nonfinite": "true" }, c.nonfinite_message));
   if (c.fit) box.append("\n", el("span", { class: c.fit.fits ? "fits" : "misfit", "data-fits": String(c.fit.fits) }, c.fit.message));
-}
-
-async function updateConsole() {
-  if (selectedRun === null) return;
-  try {
-    const log = await api("GET", `/api/runs/${selectedRun}/log?lines=40`);
-    $("console").textContent = log.lines.join("\n");
-  } catch (e) { $("console").textContent = ""; }
 }
 
 init().catch((e) => { $("health").textContent = `cannot reach the studio API: ${e.message}`; });
