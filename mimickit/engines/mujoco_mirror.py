@@ -11,35 +11,20 @@ engines share) and copied into one MjData per env asked for.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Any
 
 import mujoco
-import numpy as np
 
-from mimickit.engines.engine import ControlMode, Engine, EngineConfig, MujocoView, ObjType
+from mimickit.engines.engine import ControlMode, Engine, EngineConfig, MujocoView
 from mimickit.engines.mujoco_engine import MujocoEngine
-
-
-@dataclass(frozen=True)
-class MirrorObject:
-    """The `create_obj` arguments of one object (its start pose only matters for a fixed root)."""
-
-    obj_type: ObjType
-    asset_file: str
-    name: str
-    is_visual: bool
-    enable_self_collisions: bool
-    fix_root: bool
-    start_pos: np.ndarray
-    start_rot: np.ndarray
-    color: tuple[float, ...] | None
-    disable_motors: bool
 
 
 class MujocoMirror:
     """Env `i` of `source` as a MuJoCo model and data (see the module docstring)."""
 
-    def __init__(self, source: Engine, objects: list[MirrorObject]) -> None:
+    def __init__(self, source: Engine, objects: list[dict[str, Any]]) -> None:
+        """`objects`: the `create_obj` keyword arguments of each object of an env (all but env_id; the start
+        pose only matters for a fixed root, which the source's getters then keep in place)."""
         self._source = source
         # Kinematics only: no actuators (control mode none) and no worker threads.
         config = EngineConfig.model_validate(
@@ -47,13 +32,8 @@ class MujocoMirror:
         )
         self._engine = MujocoEngine(config, 1, "cpu")
         self._engine.create_env()
-        for o in objects:
-            self._engine.create_obj(
-                0, o.obj_type, o.asset_file, o.name, is_visual=o.is_visual,
-                enable_self_collisions=o.enable_self_collisions, fix_root=o.fix_root, start_pos=o.start_pos,
-                start_rot=o.start_rot, color=None if o.color is None else np.asarray(o.color),
-                disable_motors=o.disable_motors,
-            )  # fmt: skip
+        for kwargs in objects:
+            self._engine.create_obj(0, **kwargs)
         self._engine.initialize_sim()
         self._datas: dict[int, mujoco.MjData] = {}
 

@@ -38,7 +38,7 @@ the one counterpart, fed by the solver's CONTACT_F observable after the last sub
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING
 
 import mujoco
@@ -602,13 +602,13 @@ class NewtonEngine(Engine):
         SolverMuJoCo's own `mj_model` leaves out the geoms that do not collide, the whole reference character."""
         i = self._check_view_env(env_id)
         if self._mirror is None:
-            from mimickit.engines.mujoco_mirror import MirrorObject, MujocoMirror  # builds a MuJoCo model
+            from mimickit.engines.mujoco_mirror import MujocoMirror  # builds a MuJoCo model
 
-            self._mirror = MujocoMirror(self, [
-                MirrorObject(rec.obj_type, rec.asset_file, rec.name, rec.is_visual, rec.enable_self_collisions,
-                             rec.fix_root, pos, rot, rec.color, rec.disable_motors)
+            objects = [  # a record's fields are create_obj's keyword arguments
+                {**asdict(rec), "start_pos": pos, "start_rot": rot}
                 for rec, (pos, rot) in zip(self._env_objs[i], self._start_poses[i], strict=True)
-            ])  # fmt: skip
+            ]
+            self._mirror = MujocoMirror(self, objects)
         return self._mirror.view(i)
 
     # ------------------------------------------------------------------ getters
