@@ -28,16 +28,16 @@ import torch
 from pydantic import Field, field_validator, model_validator
 
 from mimickit.anim.kin_char_model import KinCharModel
-from mimickit.util.config import ConfigModel
+from mimickit.util.config import ConfigModel, parse_config
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import resolve_data_path
+from mimickit.util.registry import Entry, Registry
 
 if TYPE_CHECKING:
     import mujoco
 
     from mimickit.engines.bench_util import RawRollout
 
-SUPPORTED_ENGINES = ("mujoco", "newton")
 # Rate bounds: a typo such as sim_freq 3e7 would make one env step run millions of physics steps.
 MAX_SIM_FREQ = 10_000
 MAX_CONTROL_FREQ = 1_000
@@ -103,11 +103,8 @@ class EngineConfig(ConfigModel):
     @field_validator("engine_name")
     @classmethod
     def _known_engine(cls, v: str) -> str:
-        if v not in SUPPORTED_ENGINES:
-            raise ValueError(
-                f"engine '{v}' is not supported; supported engines: {', '.join(SUPPORTED_ENGINES)}"
-                + (" (Isaac Gym / Isaac Lab are not part of this port)" if v.startswith("isaac") else "")
-            )
+        if v not in ENGINES:
+            raise ValueError(ENGINES.unknown(v))
         return v
 
     @field_validator("control_mode", mode="before")
@@ -144,6 +141,31 @@ class EngineConfig(ConfigModel):
     def substeps(self) -> int:
         """Physics steps per control step."""
         return self.sim_freq // self.control_freq
+
+
+_NEWTON_EXTRA = (
+    "the Newton engine needs the optional extra: pip install .[newton] "
+    "(in its own venv, as `make test-newton` builds .venv-newton: newton[sim] pins mujoco 3.17)"
+)
+ENGINES: Registry[EngineConfig, Engine] = Registry(
+    "engine",
+    "mimickit.engines.engine:Engine",
+    {
+        "mujoco": Entry(EngineConfig, "mimickit.engines.mujoco_engine:MujocoEngine"),
+        "newton": Entry(EngineConfig, "mimickit.engines.newton_engine:NewtonEngine", missing=_NEWTON_EXTRA),
+    },
+    not_ported={name: "Isaac Gym / Isaac Lab are not part of this port" for name in ("isaac_gym", "isaac_lab")},
+)
+"""Every engine by its yaml `engine_name`. Adding an engine: subclass `Engine` in its own module and add
+one line here (an engine with fields of its own gets an `EngineConfig` subclass in that line);
+`parse_engine_config` and `engine_builder` read this table."""
+
+
+def parse_engine_config(raw: dict[str, Any], source: str | Path) -> EngineConfig:
+    """Validate an engine block against the config class of its `engine_name` (errors name `source`)."""
+    name = raw.get("engine_name")
+    config_cls = ENGINES.config_class(name) if name in ENGINES else EngineConfig  # which refuses the name
+    return parse_config(config_cls, raw, source)
 
 
 EnvIds = torch.Tensor | np.ndarray | list[int] | None

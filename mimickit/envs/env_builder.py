@@ -1,4 +1,5 @@
-"""Build an environment from an env yaml and an engine yaml, choosing the class by `env_name`."""
+"""Build an environment from an env yaml and an engine yaml, choosing the class by `env_name` from the
+`ENVS` table in `env_config` (where a new env is registered: one line there, nothing here)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ from pathlib import Path
 import torch
 
 from mimickit.engines.engine import EngineConfig
-from mimickit.envs.env_config import CharEnvConfig, load_env_configs
+from mimickit.envs.env_config import ENVS, CharEnvConfig, load_env_configs
 from mimickit.envs.sim_env import SimEnv
+from mimickit.util.errors import MimicKitError
 
 
 def build_env(
@@ -29,25 +31,8 @@ def build_env_from_configs(
     device: torch.device | str = "cpu",
     visualize: bool = False,
 ) -> SimEnv:
-    """The env class named by `env_cfg.env_name` on validated configs (callers that edit them, e.g. sim2sim)."""
-    if env_cfg.env_name == "char":
-        from mimickit.envs.char_env import CharEnv as cls
-    elif env_cfg.env_name == "deepmimic":
-        from mimickit.envs.deepmimic_env import DeepMimicEnv as cls
-    elif env_cfg.env_name == "amp":
-        from mimickit.envs.amp_env import AMPEnv as cls
-    elif env_cfg.env_name == "ase":
-        from mimickit.envs.ase_env import ASEEnv as cls
-    elif env_cfg.env_name == "add":
-        from mimickit.envs.add_env import ADDEnv as cls
-    elif env_cfg.env_name == "task_location":
-        from mimickit.envs.task_location_env import TaskLocationEnv as cls
-    elif env_cfg.env_name == "task_steering":
-        from mimickit.envs.task_steering_env import TaskSteeringEnv as cls
-    elif env_cfg.env_name == "view_motion":
-        from mimickit.envs.view_motion_env import ViewMotionEnv as cls
-    elif env_cfg.env_name == "char_dof_test":
-        from mimickit.envs.char_dof_test_env import CharDofTestEnv as cls
-    else:  # load_env_configs already refused other names
-        raise AssertionError(env_cfg.env_name)
-    return cls(env_cfg, engine_cfg, num_envs, device, visualize)
+    """The env class registered for `env_cfg.env_name` (`ENVS`), imported only now, on validated configs
+    (callers that edit them, e.g. sim2sim)."""
+    if env_cfg.env_name not in ENVS:  # a config built in code; load_env_configs refuses these itself
+        raise MimicKitError(f"env config: key 'env_name': {ENVS.unknown(env_cfg.env_name)}")
+    return ENVS.resolve(env_cfg.env_name)(env_cfg, engine_cfg, num_envs, device, visualize)

@@ -2,19 +2,27 @@
 
 An env yaml is `env_name: ...`, the env's fields (under `env:` as in MimicKit's files, or at the top
 level), and an optional `engine:` block whose entries override the engine config (spec §1.3).
+
+Adding an env: write its config class here and its env class in its own module, then add one line to
+`ENVS` below the config classes (name → config class, "module:Class"). `load_env_configs` and
+`env_builder` read that table; nothing else names envs.
 """
 
 from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 from pydantic import Field, model_validator
 
-from mimickit.engines.engine import EngineConfig
+from mimickit.engines.engine import EngineConfig, parse_engine_config
 from mimickit.util.config import ConfigModel, load_yaml, parse_config
 from mimickit.util.errors import MimicKitError
+from mimickit.util.registry import Entry, Registry
+
+if TYPE_CHECKING:
+    from mimickit.envs.sim_env import SimEnv
 
 # Engine keys that only Isaac Gym / Isaac Lab read; MimicKit env yamls may carry them.
 _ISAAC_ONLY_KEYS = {"sim", "plane", "physx"}
@@ -141,38 +149,45 @@ class CharDofTestEnvConfig(CharEnvConfig):
     global_obs: bool = False
 
 
-ENV_CONFIGS: dict[str, type[CharEnvConfig]] = {
-    "char": CharEnvConfig,
-    "deepmimic": DeepMimicEnvConfig,
-    "amp": AMPEnvConfig,
-    "add": ADDEnvConfig,
-    "ase": ASEEnvConfig,
-    "task_location": TaskLocationEnvConfig,
-    "task_steering": TaskSteeringEnvConfig,
-    "view_motion": ViewMotionEnvConfig,
-    "char_dof_test": CharDofTestEnvConfig,
-}
+ENVS: Registry[CharEnvConfig, SimEnv] = Registry(
+    "env",
+    "mimickit.envs.sim_env:SimEnv",
+    {
+        "char": Entry(CharEnvConfig, "mimickit.envs.char_env:CharEnv"),
+        "deepmimic": Entry(DeepMimicEnvConfig, "mimickit.envs.deepmimic_env:DeepMimicEnv"),
+        "amp": Entry(AMPEnvConfig, "mimickit.envs.amp_env:AMPEnv"),
+        "add": Entry(ADDEnvConfig, "mimickit.envs.add_env:ADDEnv"),
+        "ase": Entry(ASEEnvConfig, "mimickit.envs.ase_env:ASEEnv"),
+        "task_location": Entry(TaskLocationEnvConfig, "mimickit.envs.task_location_env:TaskLocationEnv"),
+        "task_steering": Entry(TaskSteeringEnvConfig, "mimickit.envs.task_steering_env:TaskSteeringEnv"),
+        "view_motion": Entry(ViewMotionEnvConfig, "mimickit.envs.view_motion_env:ViewMotionEnv"),
+        "char_dof_test": Entry(CharDofTestEnvConfig, "mimickit.envs.char_dof_test_env:CharDofTestEnv"),
+    },
+)
+"""Every env by its yaml `env_name`: `load_env_configs` and `env_builder` both use this table."""
 
 
 def load_env_configs(env_file: str | Path, engine_file: str | Path | None) -> tuple[CharEnvConfig, EngineConfig]:
     """Read and validate an env yaml and an engine yaml (the env's `engine:` block merged in)."""
     raw = load_yaml(env_file)
     env_name = raw.get("env_name")
-    if env_name not in ENV_CONFIGS:
-        raise MimicKitError(f"{env_file}: env_name {env_name!r} is not supported (supported: {', '.join(ENV_CONFIGS)})")
+    if env_name is None:
+        raise MimicKitError(f"{env_file}: missing required key 'env_name'")
+    if env_name not in ENVS:
+        raise MimicKitError(f"{env_file}: key 'env_name': {ENVS.unknown(env_name)}")
     fields = (
         dict(raw["env"])
         if isinstance(raw.get("env"), dict)
         else {k: v for k, v in raw.items() if k not in ("env_name", "engine")}
     )
     fields["env_name"] = env_name
-    env_cfg = parse_config(ENV_CONFIGS[env_name], fields, env_file)
+    env_cfg = parse_config(ENVS.config_class(env_name), fields, env_file)
     engine_raw = load_yaml(engine_file) if engine_file else {}
     engine_raw = merge_engine_overrides(engine_raw, raw.get("engine") or {}, env_file)
     if not engine_raw:
         raise MimicKitError(f"{env_file}: no engine config given (--engine_config) and no engine: block")
     source = engine_file or env_file
-    return env_cfg, parse_config(EngineConfig, engine_raw, source)
+    return env_cfg, parse_engine_config(engine_raw, source)
 
 
 def merge_engine_overrides(engine: dict[str, Any], override: dict[str, Any], env_file: str | Path) -> dict[str, Any]:

@@ -1,4 +1,5 @@
-"""Build an agent from an agent yaml, choosing the class by `agent_name` (spec §1.3).
+"""Build an agent from an agent yaml, choosing the class by `agent_name` from the `AGENTS` table in
+`agent_config` (where a new agent is registered: one line there, nothing here).
 
 No agent file (None or "") gives the `DummyAgent` (zero actions), as the reference.
 """
@@ -12,8 +13,9 @@ import torch
 
 from mimickit.envs.base_env import BaseEnv
 from mimickit.learning import mp_util
-from mimickit.learning.agent_config import BaseAgentConfig, DummyAgentConfig, load_agent_config
+from mimickit.learning.agent_config import AGENTS, BaseAgentConfig, DummyAgentConfig, load_agent_config
 from mimickit.learning.base_agent import BaseAgent
+from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import resolve_data_path
 
 
@@ -29,18 +31,7 @@ def build_agent(
 
 
 def build_agent_from_config(config: BaseAgentConfig, env: BaseEnv, device: torch.device | str = "cpu") -> BaseAgent:
-    if config.agent_name == "PPO":
-        from mimickit.learning.ppo_agent import PPOAgent as cls
-    elif config.agent_name == "AWR":
-        from mimickit.learning.awr_agent import AWRAgent as cls
-    elif config.agent_name == "AMP":
-        from mimickit.learning.amp_agent import AMPAgent as cls
-    elif config.agent_name == "ASE":
-        from mimickit.learning.ase_agent import ASEAgent as cls
-    elif config.agent_name == "ADD":
-        from mimickit.learning.add_agent import ADDAgent as cls
-    elif config.agent_name == "Dummy":
-        from mimickit.learning.dummy_agent import DummyAgent as cls
-    else:  # load_agent_config already refused other names
-        raise AssertionError(config.agent_name)
-    return cls(config, env, device)
+    """The agent class registered for `config.agent_name` (`AGENTS`), imported only now."""
+    if config.agent_name not in AGENTS:  # a config built in code; load_agent_config refuses these itself
+        raise MimicKitError(f"agent config: key 'agent_name': {AGENTS.unknown(config.agent_name)}")
+    return AGENTS.resolve(config.agent_name)(config, env, device)

@@ -3,18 +3,26 @@
 The reference's agent yamls are the format. An unknown key, a wrong type or a missing required key is
 one `MimicKitError` naming the file and the key; numbers written like `1e-4` are numbers. Batch sizes
 (`actor_batch_size`, `critic_batch_size`) are in units of `num_envs`, as in the reference.
+
+Adding an agent: write its config class here and its agent class in its own module, then add one line
+to `AGENTS` at the end of this file (name → config class, "module:Class"). The loader and
+`agent_builder` read that table; nothing else names agents.
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field, model_validator
 
 from mimickit.util.config import ConfigModel, load_yaml, parse_config
 from mimickit.util.errors import MimicKitError
+from mimickit.util.registry import Entry, Registry
+
+if TYPE_CHECKING:
+    from mimickit.learning.base_agent import BaseAgent
 
 NetName = Literal[
     "fc_2layers_128units",
@@ -184,16 +192,20 @@ class ASEAgentConfig(AMPAgentConfig):
         return self
 
 
-AGENT_CONFIGS: dict[str, type[BaseAgentConfig]] = {
-    "PPO": PPOAgentConfig,
-    "AWR": AWRAgentConfig,
-    "AMP": AMPAgentConfig,
-    "ADD": ADDAgentConfig,
-    "ASE": ASEAgentConfig,
-    "Dummy": DummyAgentConfig,
-}
-# Agents of the reference that are not ported yet; named in the error message.
-_NOT_YET = ("LCP", "SMP")
+AGENTS: Registry[BaseAgentConfig, BaseAgent] = Registry(
+    "agent",
+    "mimickit.learning.base_agent:BaseAgent",
+    {
+        "PPO": Entry(PPOAgentConfig, "mimickit.learning.ppo_agent:PPOAgent"),
+        "AWR": Entry(AWRAgentConfig, "mimickit.learning.awr_agent:AWRAgent"),
+        "AMP": Entry(AMPAgentConfig, "mimickit.learning.amp_agent:AMPAgent"),
+        "ADD": Entry(ADDAgentConfig, "mimickit.learning.add_agent:ADDAgent"),
+        "ASE": Entry(ASEAgentConfig, "mimickit.learning.ase_agent:ASEAgent"),
+        "Dummy": Entry(DummyAgentConfig, "mimickit.learning.dummy_agent:DummyAgent"),
+    },
+    not_ported={"LCP": "not ported yet", "SMP": "not ported yet"},
+)
+"""Every agent by its yaml `agent_name`: the loader below and `agent_builder` both use this table."""
 
 
 def load_agent_config(path: str | Path) -> BaseAgentConfig:
@@ -202,8 +214,6 @@ def load_agent_config(path: str | Path) -> BaseAgentConfig:
     name = data.get("agent_name")
     if name is None:
         raise MimicKitError(f"{path}: missing required key 'agent_name'")
-    if name not in AGENT_CONFIGS:
-        supported = ", ".join(AGENT_CONFIGS)
-        hint = " (not ported yet)" if name in _NOT_YET else ""
-        raise MimicKitError(f"{path}: key 'agent_name': unsupported agent '{name}'{hint}; supported: {supported}")
-    return parse_config(AGENT_CONFIGS[name], data, path)
+    if name not in AGENTS:
+        raise MimicKitError(f"{path}: key 'agent_name': {AGENTS.unknown(name)}")
+    return parse_config(AGENTS.config_class(name), data, path)
