@@ -1,0 +1,118 @@
+"""The env registry (`ENVS`): every name loads its config class from a yaml and resolves its env class
+(the builder builds from the same entry, importing only that env's module); an unknown name is one error
+line naming the nearest."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import mujoco  # noqa: F401  (imported at collection: its GLFW probe starts a process, allowed only then)
+import pytest
+import yaml
+
+from mimickit.envs.env_builder import build_env_from_configs
+from mimickit.envs.env_config import ENVS, CharEnvConfig, load_env_configs
+from mimickit.envs.sim_env import SimEnv
+from mimickit.util.config import load_yaml
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
+
+ENGINE = PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml"
+DEEPMIMIC = PROJECT_DATA_DIR / "envs" / "deepmimic_humanoid_env.yaml"
+
+
+def shipped_env_yamls() -> dict[str, Path]:
+    """The first shipped env yaml of each env_name."""
+    found: dict[str, Path] = {}
+    for path in sorted((PROJECT_DATA_DIR / "envs").glob("*.yaml")):
+        found.setdefault(load_yaml(path)["env_name"], path)
+    return found
+
+
+def char_env_yaml(tmp_path: Path) -> Path:
+    """A plain `char` env yaml (no shipped one): the DeepMimic humanoid's fields that CharEnvConfig has."""
+    fields = load_yaml(DEEPMIMIC)["env"]
+    path = tmp_path / "char_env.yaml"
+    path.write_text(
+        yaml.safe_dump({"env_name": "char", "env": {k: fields[k] for k in CharEnvConfig.model_fields if k in fields}})
+    )
+    return path
+
+
+def test_the_reference_env_names_are_registered():
+    assert ENVS.names == (
+        "char", "deepmimic", "amp", "add", "ase", "task_location", "task_steering", "view_motion", "char_dof_test",
+    )  # fmt: skip
+    assert set(shipped_env_yamls()) <= set(ENVS.names)
+
+
+@pytest.mark.parametrize("name", ENVS.names)
+def test_every_env_loads_its_config_class_and_resolves_its_class(tmp_path, name):
+    path = shipped_env_yamls().get(name) or char_env_yaml(tmp_path)
+    env_cfg, _ = load_env_configs(path, ENGINE)
+    assert type(env_cfg) is ENVS.config_class(name) and env_cfg.env_name == name
+    cls = ENVS.resolve(name)
+    assert issubclass(cls, SimEnv) and cls is not SimEnv
+
+
+def test_the_builder_builds_the_registered_class(tmp_path):
+    env_cfg, engine_cfg = load_env_configs(char_env_yaml(tmp_path), ENGINE)
+    env = build_env_from_configs(env_cfg, engine_cfg, 1)
+    assert type(env) is ENVS.resolve("char")
+
+
+def test_an_unknown_env_name_is_one_line_naming_the_nearest(tmp_path):
+    f = tmp_path / "env.yaml"
+    f.write_text(DEEPMIMIC.read_text().replace('env_name: "deepmimic"', 'env_name: "deepmimc"'))
+    with pytest.raises(MimicKitError) as e:
+        load_env_configs(f, ENGINE)
+    assert str(e.value) == (
+        f"{f}: key 'env_name': env 'deepmimc' is not supported; supported envs: char, deepmimic, amp, add, ase, "
+        "task_location, task_steering, view_motion, char_dof_test (did you mean 'deepmimic'?)"
+    )
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("episode_length: 1.0\n", "missing required key 'env_name'"),
+        ("env_name: [amp]\n", "env ['amp'] is not supported; supported envs: char,"),
+        ("env_name: 7\n", "env 7 is not supported"),
+    ],
+)
+def test_odd_env_names_are_one_line(tmp_path, text, needle):
+    f = tmp_path / "env.yaml"
+    f.write_text(text)
+    with pytest.raises(MimicKitError) as e:
+        load_env_configs(f, ENGINE)
+    assert str(e.value).startswith(f"{f}: ") and needle in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_config_built_in_code_with_an_unknown_name_is_refused_by_the_builder(tmp_path):
+    env_cfg, engine_cfg = load_env_configs(char_env_yaml(tmp_path), ENGINE)
+    bad = env_cfg.model_copy(update={"env_name": "chr"})
+    with pytest.raises(MimicKitError, match="env 'chr' is not supported.*did you mean 'char'"):
+        build_env_from_configs(bad, engine_cfg, 1)
+
+
+LAZY_CHECK = f"""
+import sys
+from mimickit.envs.env_builder import build_env
+env = build_env({str(DEEPMIMIC)!r}, {str(ENGINE)!r}, 1)
+others = [m for m in sys.modules if m.split(".")[0] == "newton" or m in (
+    "mimickit.engines.newton_engine", "mimickit.envs.amp_env", "mimickit.envs.add_env", "mimickit.envs.ase_env",
+    "mimickit.envs.task_location_env", "mimickit.envs.task_steering_env", "mimickit.envs.view_motion_env",
+    "mimickit.envs.char_dof_test_env", "mimickit.learning.ppo_agent", "mimickit.learning.amp_agent")]
+print(type(env).__name__, others)
+"""
+
+
+@pytest.mark.integration
+def test_building_a_deepmimic_env_imports_no_other_env_agent_or_engine():
+    out = subprocess.run(
+        [sys.executable, "-c", LAZY_CHECK], cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "DeepMimicEnv []"
