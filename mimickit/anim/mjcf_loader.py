@@ -2,9 +2,13 @@
 
 MuJoCo's compiler resolves defaults, classes, angle units, euler/axisangle frames and includes, so the
 character model reads compiled values instead of re-implementing MJCF. Characters from MimicKit's data
-archive sometimes lack their mesh files (Go2); when every geom using a missing mesh is visual only
-(contype = conaffinity = 0) those geoms are dropped with a warning, since neither kinematics nor
-simulation need them.
+archive sometimes lack their mesh files (Go2, PI+). Geoms of a missing mesh are dropped with a warning:
+visual ones (contype = conaffinity = 0) are needed by neither kinematics nor simulation; colliding ones
+(PI+'s links collide through their meshes) are needed by neither kinematics nor the bodies' masses when
+the body gives its `<inertial>`, so they are dropped too. The warning names the bodies left with no
+collision geometry (their contacts, e.g. a fallen torso on the floor, go unseen by the simulation) and those
+whose mass came from a dropped geom (PI+'s fixed `head`: its mass is lost, the rest of the robot keeps its
+`<inertial>` figures).
 """
 
 from __future__ import annotations
@@ -48,23 +52,32 @@ def _drop_missing_meshes(spec: mujoco.MjSpec, path: Path) -> None:
     missing = {m.name for m in spec.meshes if m.file and not (meshdir / m.file).is_file()}
     if not missing:
         return
-    dropped = 0
+    dropped, colliding, massless = 0, 0, set()
     for geom in list(spec.geoms):
         if geom.type == mujoco.mjtGeom.mjGEOM_MESH and geom.meshname in missing:
             if geom.contype != 0 or geom.conaffinity != 0:
-                raise MimicKitError(
-                    f"{path}: mesh '{geom.meshname}' is missing and geom '{geom.name or geom.meshname}' "
-                    "collides, so the model cannot be simulated without it"
-                )
+                colliding += 1
+                if not geom.parent.explicitinertial:
+                    massless.add(geom.parent.name)
             spec.delete(geom)
             dropped += 1
     for mesh in list(spec.meshes):
         if mesh.name in missing:
             spec.delete(mesh)
-    warnings.warn(
-        f"{path}: {len(missing)} mesh file(s) missing under {meshdir}; dropped {dropped} visual-only geoms",
-        stacklevel=3,
-    )
+    kind = f"({colliding} colliding)" if colliding else "visual-only"
+    note = f"; dropped {dropped} {kind} geoms"
+    bare = _bodies_without_collision(spec) if colliding else []
+    if bare:
+        note += f"; bodies with no collision geometry left: {', '.join(bare)}"
+    if massless:
+        note += f"; bodies whose mass came from dropped geoms: {', '.join(sorted(massless))}"
+    warnings.warn(f"{path}: {len(missing)} mesh file(s) missing under {meshdir}{note}", stacklevel=3)
+
+
+def _bodies_without_collision(spec: mujoco.MjSpec) -> list[str]:
+    """Bodies (the world excepted) none of whose geoms can collide."""
+    colliding = {g.parent.name for g in spec.geoms if g.contype != 0 or g.conaffinity != 0}
+    return [b.name for b in spec.bodies[1:] if b.name not in colliding]
 
 
 def _one_line(e: Exception) -> str:
