@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import multiprocessing.process
 import os
+import platform
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,6 +19,10 @@ from pathlib import Path
 import pytest
 
 from mimickit.util.paths import PROJECT_DATA_DIR
+
+# warp (the Newton engine) asks platform.processor() when it builds its first model, which runs `uname -p`
+# in a subprocess. Python caches the answer, so asking here, before any test, keeps that out of the guard.
+platform.processor()
 
 PROCESS_MARKS = ("integration", "browser")
 _running: list[pytest.Item] = []  # the test being set up, run or torn down
