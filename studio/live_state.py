@@ -57,16 +57,23 @@ class LiveState:
         self._read_scene, self._read_runs = read_scene, read_runs
         self._listeners = 0
         self._task: asyncio.Task | None = None
+        self._ready = asyncio.Event()
         self._changed = asyncio.Event()
+
+    @property
+    def watching(self) -> bool:
+        return self._task is not None and not self._task.done()
 
     @contextlib.asynccontextmanager
     async def subscribe(self) -> AsyncIterator[None]:
-        """While inside, the watcher runs; the first listener waits for one fresh sample."""
+        """While inside, the watcher runs (one for all listeners); a listener starts once the watcher
+        has taken a fresh sample, so what it sends first is the state now, not when the last page left."""
         self._listeners += 1
         try:
-            if self._task is None or self._task.done():
-                await self._sample(runs=True)
-                self._task = asyncio.get_running_loop().create_task(self._watch())
+            if not self.watching:
+                self._ready = asyncio.Event()
+                self._task = asyncio.get_running_loop().create_task(self._watch(self._ready))
+            await self._ready.wait()
             yield
         finally:
             self._listeners -= 1
@@ -82,7 +89,9 @@ class LiveState:
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(event.wait(), timeout)
 
-    async def _watch(self) -> None:
+    async def _watch(self, ready: asyncio.Event) -> None:
+        await self._sample(runs=True)
+        ready.set()
         tick = 0
         while True:
             await asyncio.sleep(SCENE_PERIOD_S)
