@@ -197,6 +197,8 @@ def _nearest_field(model: type[BaseModel], loc: tuple[Any, ...]) -> str:
     """' (did you mean 'x'?)' for the unknown key at `loc`, looked up in the (nested) model."""
     current: Any = model
     for part in loc[:-1]:
+        if isinstance(part, int):  # an item of a list: `current` is already the item's model
+            continue
         field = getattr(current, "model_fields", {}).get(part) if isinstance(part, str) else None
         if field is None:
             return ""

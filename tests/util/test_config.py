@@ -87,3 +87,14 @@ def test_validation_error_lists_a_few_problems():
         Many.model_validate({})
     msg = format_validation_error(e.value, Many)
     assert msg.count("missing required key") == 5 and msg.endswith("and 2 more problems")
+
+
+class ListOfAgents(ConfigModel):
+    agents: list[Agent]
+
+
+def test_unknown_key_in_a_list_item_names_the_nearest_field(tmp_path):
+    f = tmp_path / "c.yaml"
+    f.write_text("agents:\n  - learning_rate: 0.1\n  - lerning_rate: 0.2\n")
+    with pytest.raises(MimicKitError, match=r"unknown key 'agents.1.lerning_rate' \(did you mean 'learning_rate'\?\)"):
+        load_config(ListOfAgents, f)
