@@ -96,11 +96,10 @@ class PPOAgent(BaseAgent):
             adv = tar_val - self._eval_critic_batched(buf.get_data("obs"))
             adv_mean, adv_std = self._calc_adv_stats(adv, buf.get_data("rand_action_mask"))
             norm_adv = (adv - adv_mean) / adv_std.clamp_min(1e-5)
-        buf.set_data("tar_val", tar_val)
-        # The normalisers stay fixed through the updates: normalise the update inputs once, not per minibatch.
-        with torch.no_grad():
+            # The normalisers stay fixed through the updates: normalise their inputs once, not per minibatch.
             buf.set_data("norm_obs", self._obs_norm.normalize(buf.get_data("obs")))
             buf.set_data("norm_action", self._a_norm.normalize(buf.get_data("action")))
+        buf.set_data("tar_val", tar_val)
         info = self._store_actor_targets(norm_adv)
         return {"adv_mean": adv_mean.item(), "adv_std": adv_std.item(), **info}
 
