@@ -30,7 +30,6 @@ from pydantic import Field, field_validator, model_validator
 from mimickit.anim.kin_char_model import KinCharModel
 from mimickit.util.config import ConfigModel, parse_config
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
 from mimickit.util.registry import Entry, Registry
 
 if TYPE_CHECKING:
@@ -272,13 +271,13 @@ class Engine(abc.ABC):
 
     # ------------------------------------------------------------------ object bookkeeping (both engines)
     def _check_new_obj(self, env_id: int, asset_file: str) -> str:
-        """Validate a `create_obj` call; returns the asset's resolved path (configs name assets as
-        "data/assets/...")."""
+        """Validate a `create_obj` call; returns the asset's path. The env resolves configs' `data/...`
+        names (its `DataPaths`) before it asks: an engine takes file paths as they are."""
         if self._sim_initialized():
             raise MimicKitError("create_obj: the simulation is already initialized")
         if not 0 <= env_id < len(self._env_objs):
             raise MimicKitError(f"create_obj: env {env_id} was not created (call create_env first)")
-        path = str(resolve_data_path(asset_file))
+        path = str(Path(asset_file).expanduser())
         if not Path(path).is_file():
             raise MimicKitError(f"asset file not found: {path}")
         return path
