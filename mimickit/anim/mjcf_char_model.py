@@ -1,6 +1,6 @@
 """Build a `KinCharModel` from an MJCF file, reading MuJoCo's compiled model.
 
-Rules (spec §3.2, made stricter where the reference silently misreads a file):
+Rules (the reference's MJCF reader's, made stricter where it silently misreads a file):
 - the root is the first body under `<worldbody>`; its joint is ROOT whatever it is;
 - a non-root body with no joint is FIXED; one hinge is a HINGE; one ball joint or three hinges about
   x, y, z are one SPHERICAL joint (named after the first hinge up to its last `_`);

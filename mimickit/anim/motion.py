@@ -1,7 +1,8 @@
 """MimicKit motion clips: the `.pkl` format, read safely and written byte-compatibly.
 
 A clip is a pickled dict `{"loop_mode": int, "fps": number, "frames": [[...], ...]}` with frames
-`[root_pos(3), root_rot exp-map(3), dofs(D)]` per row, loop_mode 0 = clamp, 1 = wrap (spec §4.1).
+`[root_pos(3), root_rot exp-map(3), dofs(D)]` per row, loop_mode 0 = clamp, 1 = wrap: MimicKit's format,
+so its clips load here and clips written here load in MimicKit.
 
 A clip file is untrusted input. It is unpickled by `mimickit.util.safe_pickle` (data only, every
 length and index checked) under `ClipLimits`, and its frames are checked row by row, without
