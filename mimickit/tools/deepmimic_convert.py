@@ -8,7 +8,8 @@ with 44 numbers per frame::
      left_elbow(1)]
 
 quaternions w-first, a Y-up world, ``dt`` = time from this frame to the next (the last one is ignored,
-it is usually 0). MimicKit humanoid frame (spec §4.1): ``[root_pos(3), root_rot exp-map(3), abdomen(3),
+it is usually 0). MimicKit humanoid frame (the `.pkl` layout of `mimickit.anim.motion` on
+``data/assets/humanoid/humanoid.xml``): ``[root_pos(3), root_rot exp-map(3), abdomen(3),
 neck(3), right_shoulder(3), right_elbow(1), left_shoulder(3), left_elbow(1), right_hip(3), right_knee(1),
 right_ankle(3), left_hip(3), left_knee(1), left_ankle(3)]`` in a Z-up world.
 

@@ -5,7 +5,7 @@
 The clip is written in MimicKit's .pkl format (a pickled plain dict
 ``{"loop_mode": 1, "fps": 30, "frames": [[34 floats], ...]}``); each frame is
 ``[root_pos(3), root_rot exp-map(3), joint dofs(28)]`` with every 3-DoF joint stored as the exponential
-map of its local rotation and every hinge as its angle (DoF layout in body order, as in the spec).
+map of its local rotation and every hinge as its angle (DoF layout in body order, as MimicKit's clips).
 
 The motion, over one period (default 3 s, 91 frames, first frame == last frame):
   * it starts and ends in the humanoid's init pose (arms down, root at 0.882416 m);

@@ -1,4 +1,4 @@
-"""Learning curves from training logs: `mimickit plot` (the reference's `tools/plot_log`, spec §7).
+"""Learning curves from training logs: `mimickit plot` (the reference's `tools/plot_log`).
 
 Reads `log.txt` (a header row of column names, then whitespace-separated rows, one per output
 iteration; `# ...` note lines skipped) or `metrics.jsonl` (one JSON object per iteration; NaN and

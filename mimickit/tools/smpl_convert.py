@@ -5,7 +5,7 @@ SMPL-H, 55 for SMPL-X; the first 22 joints are the body), `trans` [T, 3] the roo
 frame rate in `mocap_framerate`, `mocap_frame_rate` or `fps`. No SMPL body model is needed: the pose
 conversion uses only the joint rotations and the character's skeleton.
 
-What the conversion does (as MimicKit's `smpl_to_mimickit`, spec §10):
+What the conversion does (as MimicKit's `tools/smpl_to_mimickit`):
 
 * SMPL's rest pose is Y-up facing +z (its left is +x); the MuJoCo SMPL character's is Z-up facing +x
   (left +y). A vector in the character's body frame maps into SMPL's by the cyclic permutation
