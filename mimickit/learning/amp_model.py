@@ -1,4 +1,4 @@
-"""AMP's networks (spec §6.4): PPO's actor and critic plus a discriminator.
+"""AMP's networks, as the reference's: PPO's actor and critic plus a discriminator.
 
 Discriminator: `_disc_layers` (a named MLP) → `_disc_logits` (Linear → 1, weights U(-1, 1), zero
 bias), on normalised disc obs [B, disc_obs_dim]. Attribute names are the reference's checkpoint keys.

@@ -1,4 +1,4 @@
-"""ASE's networks (spec §6.4, §6.8): AMP's actor, critic and discriminator plus an encoder.
+"""ASE's networks, as the reference's: AMP's actor, critic and discriminator plus an encoder.
 
 Actor and critic take [normalised obs, z] (obs_size + latent_dim inputs). The encoder `_enc_layers`
 (a named MLP on the normalised disc obs) → `_enc_out` (Linear → latent_dim; weights U(−0.1, 0.1) and

@@ -1,4 +1,4 @@
-"""ASE's latent sampling, encoder reward / loss and diversity loss (spec §6.8), as pure functions."""
+"""ASE's latent sampling, encoder reward / loss and diversity loss (as the reference's ASE), as pure functions."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Discriminator losses and reward of adversarial imitation (AMP, spec §6.7), as pure functions.
+"""Discriminator losses and reward of adversarial imitation (the reference's AMP), as pure functions.
 
 Logits are [B] (one per sample); inputs are the *normalised* disc obs [B, disc_obs_dim].
 """

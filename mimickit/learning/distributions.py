@@ -1,4 +1,4 @@
-"""Diagonal Gaussian policy head (spec §6.4).
+"""Diagonal Gaussian policy head, as the reference's (same init, same checkpoint keys).
 
 `GaussianDiagHead` maps features [B, F] to a `GaussianDiag` over normalised actions [B, A]:
 the mean is a Linear (`_mean_net`) with weights U(−s, s) and zero bias; the log-std (`_logstd_net`) is

@@ -1,4 +1,4 @@
-"""Rollout storage: named arrays [length, batch, ...] filled one env step (row) at a time (spec §6.3).
+"""Rollout storage: named arrays [length, batch, ...] filled one env step (row) at a time, as the reference's.
 
 Arrays are created on the first `record(name, x)`; `inc()` advances the row (wrapping) and counts
 `batch` samples. Flat views [length·batch, ...] share memory with the arrays. `sample(n)` walks a

@@ -1,4 +1,4 @@
-"""Training output: terminal table, `log.txt`, `metrics.jsonl`, TensorBoard (spec §7).
+"""Training output: terminal table, `log.txt`, `metrics.jsonl`, TensorBoard (log.txt and tags as the reference's).
 
 Per iteration the agent calls `log(key, value, collection, quiet)` for each scalar (and `log_metric`
 for per-term means that only go to metrics.jsonl and TensorBoard), then:

@@ -1,4 +1,4 @@
-"""An optimiser that keeps the parameters of all processes identical (spec §1.4).
+"""An optimiser that keeps the parameters of all processes identical, as the reference's.
 
 `step(loss)`: zero grad → backward → (multi-process) average the gradients over processes → optional
 global-norm clip → optimiser step → every `CHECK_SYNC_STEPS` steps (from step 0) assert that every

@@ -1,4 +1,4 @@
-"""Multi-process helpers over `torch.distributed` (spec §1.4).
+"""Multi-process helpers over `torch.distributed`, as the reference's `mp_util`.
 
 One OS process per device; `init(rank, num_procs, device, port)` joins the process group (gloo on
 CPU, NCCL on CUDA) at localhost:port, or, with port None, through env:// (MASTER_ADDR / MASTER_PORT as
@@ -134,7 +134,8 @@ def calc_mean_std(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean and std of `x` [n] over all processes.
 
     As the reference: the average of per-process means and the square root of the average of
-    per-process (unbiased) variances, not the exact pooled variance (spec §1.4 [RE minor]).
+    per-process (unbiased) variances, not the exact pooled variance: kept, so advantages are normalised as there
+    (docs/architecture.md, *Faithfulness to the reference*).
     Returns two 0-d tensors.
     """
     mean = x.mean()

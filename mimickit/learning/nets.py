@@ -1,4 +1,4 @@
-"""The reference's named MLPs (spec §6.4).
+"""The reference's named MLPs (the `*_net` names of its agent yamls).
 
 Each hidden layer is Linear → ReLU (the last one too), so in the `nn.Sequential` the Linears sit at
 even indices (0, 2, 4) and checkpoint keys read `<net>.0.weight`, `<net>.2.bias`, ... Biases start at

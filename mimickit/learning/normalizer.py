@@ -1,4 +1,4 @@
-"""Running mean/std normaliser, and the mean-|x| normaliser of differences ADD uses (spec §6.2).
+"""Running mean/std normaliser, and the mean-|x| normaliser of differences ADD uses (both as the reference's).
 
 `record(x)` accumulates count, Σx and Σx² of new samples; `update()` sums those over processes and
 merges them into the cumulative mean and variance, weighted by counts (no EMA, no decay);
@@ -109,7 +109,7 @@ class Normalizer(nn.Module):
 
 
 class DiffNormalizer(nn.Module):
-    """Scale-only normaliser of differences (ADD, spec §6.2): x / max(mean |x|, min_diff), clipped.
+    """Scale-only normaliser of differences (ADD, as the reference's): x / max(mean |x|, min_diff), clipped.
 
     Differences are centred at 0 by construction (0 = a perfect match), so there is no shift: a mean
     would move the zero vector the discriminator learns as "demo". `record` accumulates count and Σ|x|;

@@ -1,4 +1,4 @@
-"""Actor and critic networks of PPO and AWR (spec §6.4).
+"""Actor and critic networks of PPO and AWR, as the reference's (its checkpoint keys).
 
 Actor: `_actor_layers` (a named MLP) → `_action_dist` (Gaussian head: `_mean_net`, `_logstd_net`).
 Critic: `_critic_layers` → `_critic_out` (Linear → 1, PyTorch default weights, zero bias).

@@ -1,4 +1,4 @@
-"""Undiscounted episode returns and lengths of N envs (spec §6.11).
+"""Undiscounted episode returns and lengths of N envs, as the reference's return tracker.
 
 `update(reward, done)` adds each env's reward to its running return; envs whose done flag is not
 NULL fold their episode into the running means and start over. Everything stays on the device (no

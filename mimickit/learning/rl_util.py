@@ -1,4 +1,4 @@
-"""Pure functions of the PPO/AWR math (spec §6.1, §6.5, §6.6), testable on hand-made tensors."""
+"""Pure functions of the PPO/AWR math (the reference's), testable on hand-made tensors."""
 
 from __future__ import annotations
 
