@@ -1,4 +1,4 @@
-"""ADDEnv: adversarial differential discriminators (spec §5.6): DeepMimic's tracking task, scored by a
+"""ADDEnv: adversarial differential discriminators (the reference's `add`): DeepMimic's tracking task, scored by a
 discriminator of the *difference* between the reference and the character.
 
 Every step and reset the env provides, for each env, `info["disc_obs"]` [N, disc_obs_dim], the ADD
@@ -81,7 +81,7 @@ class ADDEnv(AMPEnv):
 
 
 def compute_add_disc_obs(hist: dict[str, torch.Tensor], global_obs: bool, dof_vel_obs: bool) -> torch.Tensor:
-    """ADD disc obs of a state history (spec §5.6): every step in its own frame.
+    """ADD disc obs of a state history, as the reference's: every step in its own frame.
 
     hist holds S steps, oldest first: root_pos / root_vel / root_ang_vel [N,S,3], root_rot [N,S,4],
     joint_rot [N,S,J-1,4], dof_vel [N,S,D], body_pos [N,S,B,3] (all B bodies) →

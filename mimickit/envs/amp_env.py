@@ -1,4 +1,4 @@
-"""AMPEnv: DeepMimic's character and reference-state init, scored by a discriminator (spec §5.4).
+"""AMPEnv: DeepMimic's character and reference-state init, scored by a discriminator, as the reference's `amp`.
 
 The env keeps a history of the last `num_disc_obs_steps` character states and turns it into the
 discriminator observation `info["disc_obs"]` [N, disc_obs_dim] after every step and reset;
@@ -172,7 +172,7 @@ def compute_disc_obs(
     root_height_obs: bool,
     dof_vel_obs: bool,
 ) -> torch.Tensor:
-    """Discriminator observation of a state history (spec §5.4).
+    """Discriminator observation of a state history, laid out as the reference's.
 
     hist holds S steps, oldest first: root_pos / root_vel / root_ang_vel [N,S,3], root_rot [N,S,4],
     joint_rot [N,S,J-1,4], dof_vel [N,S,D], body_pos [N,S,K,3] (AMP: the K key bodies); the positions

@@ -1,11 +1,11 @@
-"""ASEEnv (spec §5.5): AMPEnv whose resets sometimes start from the default pose.
+"""ASEEnv (the reference's `ase`): AMPEnv whose resets sometimes start from the default pose.
 
 After the reference-state init, each reset env independently, with probability `default_reset_prob`,
 is put back into the character's init pose with zero velocities (CharEnv's reset). Its disc-obs
 history is still the clip leading up to the sampled motion time, as the reference does it, so the
 first discriminator observations of such an episode join a clip history to a standing pose.
 
-The latent skill codes z live in the ASE agent (spec §6.8), which samples them per env and resamples
+The latent skill codes z live in the ASE agent (`learning/ase_agent.py`), which samples them per env and resamples
 them on reset and on its own schedule. The env only scores them: with an encoder reward function
 attached (`set_enc_reward_fn`), `info["reward_terms"]` holds `enc` beside AMP's `task` and `disc`.
 """

@@ -1,4 +1,4 @@
-"""The environment interface every agent talks to (spec §5.1)."""
+"""The environment interface every agent talks to (the reference's `BaseEnv`)."""
 
 from __future__ import annotations
 

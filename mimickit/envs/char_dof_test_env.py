@@ -2,7 +2,7 @@
 
 Every 4 s the active DoF advances (index = floor(t / 4) + env_id, mod D); its command follows
 |sin(2π·frac)| toward the action bound on the side of the sine's sign; all other DoFs are held at 0.
-The episode lasts 4·D seconds (spec §5.8).
+The episode lasts 4·D seconds, as in the reference, so every DoF gets its turn.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Typed configs of the environments, and loading an env yaml (+ engine yaml) the reference's way.
 
 An env yaml is `env_name: ...`, the env's fields (under `env:` as in MimicKit's files, or at the top
-level), and an optional `engine:` block whose entries override the engine config (spec §1.3).
+level), and an optional `engine:` block whose entries override the engine config (as the reference's env builder does).
 
 Adding an env: write its config class here and its env class in its own module, then add one line to
 `ENVS` below the config classes (name → config class, "module:Class"). `load_env_configs` and
@@ -104,7 +104,7 @@ class ADDEnvConfig(AMPEnvConfig):
 
 
 class TaskLocationEnvConfig(AMPEnvConfig):
-    """AMP + walk to a target location on the ground (spec §5.7; humanoid: speed 1, change 5–10 s, dist ≤ 10)."""
+    """AMP + walk to a target location on the ground (humanoid yaml: speed 1, change 5–10 s, dist ≤ 10)."""
 
     tar_speed: float = Field(gt=0, description="m/s the velocity reward asks for towards the target")
     tar_change_time_min: float = Field(gt=0, description="s")
@@ -120,7 +120,7 @@ class TaskLocationEnvConfig(AMPEnvConfig):
 
 
 class TaskSteeringEnvConfig(AMPEnvConfig):
-    """AMP + move in a commanded direction at a commanded speed, optionally facing another way (spec §5.7)."""
+    """AMP + move in a commanded direction at a commanded speed, optionally facing another way."""
 
     rand_tar_dir: bool = True
     rand_face_dir: bool = True
@@ -134,7 +134,7 @@ class TaskSteeringEnvConfig(AMPEnvConfig):
 
 
 class ASEEnvConfig(AMPEnvConfig):
-    """AMP's fields plus the chance of starting an episode from the default pose (spec §5.5)."""
+    """AMP's fields plus the chance of starting an episode from the default pose."""
 
     default_reset_prob: float = Field(ge=0, le=1)
     """Per reset env, the probability of the init pose (zero velocities) instead of a clip state."""

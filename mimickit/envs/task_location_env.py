@@ -1,4 +1,4 @@
-"""TaskLocationEnv (`task_location`): AMP style while walking to a target on the ground (spec §5.7).
+"""TaskLocationEnv (`task_location`): AMP style while walking to a target on the ground, as the reference's.
 
 Target: the root's xy plus d·(cos φ, sin φ), d ~ U[tar_dist_min, tar_dist_max], φ ~ U[0, 2π), z 0.
 Task obs (2): the target relative to the root in the heading frame. Task reward: position, velocity
@@ -85,7 +85,7 @@ def location_reward(
     tar_pos: torch.Tensor,
     cfg: TaskLocationEnvConfig,
 ) -> torch.Tensor:
-    """r = w_pos·exp(−pos_err_scale·|Δxy|²) + w_vel·r_vel + w_face·max(u·facing, 0) [n] (spec §5.7).
+    """r = w_pos·exp(−pos_err_scale·|Δxy|²) + w_vel·r_vel + w_face·max(u·facing, 0) [n], the reference's.
 
     root_pos, root_vel [n, 3] (velocity over the last control step), facing [n, 2] unit heading, tar_pos
     [n, 3]; u is the unit xy direction to the target. r_vel = exp(−vel_err_scale·max(tar_speed − v·u, 0)²),

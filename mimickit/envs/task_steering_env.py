@@ -1,4 +1,4 @@
-"""TaskSteeringEnv (`task_steering`): AMP style while moving in a commanded direction (spec §5.7).
+"""TaskSteeringEnv (`task_steering`): AMP style while moving in a commanded direction, as the reference's.
 
 Per change: a target direction (angle U[−π, π) with rand_tar_dir, else 0), a facing direction (U[−π, π)
 with rand_face_dir, else the target direction) and a speed U[tar_speed_min, tar_speed_max]. Task obs
