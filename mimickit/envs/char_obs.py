@@ -1,4 +1,5 @@
-"""Observation features of a character, as pure functions of batched state (spec §5.2, §5.3).
+"""Observation features of a character, as pure functions of batched state, laid out
+as the reference's (so its checkpoints' observation normalisers fit).
 
 Shapes: N envs, J bodies (root included), D DoFs, K key bodies.
 """

@@ -1,4 +1,4 @@
-"""DeepMimic's imitation reward, one small function per term (spec §5.3).
+"""DeepMimic's imitation reward, one small function per term, the reference's terms and formula.
 
 Each term is exp(−scale · error) ∈ (0, 1], exactly 1 when the character matches the reference; the
 reward is Σ weight · term. Shapes: N envs, J bodies, D DoFs, K key bodies.
@@ -92,7 +92,7 @@ def compute_reward_terms(
 def tracking_errors(
     sim: dict[str, torch.Tensor], ref: dict[str, torch.Tensor], dof_joint_ids: torch.Tensor
 ) -> dict[str, torch.Tensor]:
-    """Per-env tracking errors [N]: the reference code's seven (spec §5.3; metres, radians and their
+    """Per-env tracking errors [N]: the reference code's seven (metres, radians and their
     rates, means over bodies/DoFs), then the paper's two (`paper_errors`). `dof_joint_ids` [D]: the
     non-root joint (0..J-2) owning each DoF (`KinCharModel.dof_joint_ids`)."""
     root_err = torch.linalg.norm(sim["root_pos"] - ref["root_pos"], dim=-1)
