@@ -1,4 +1,4 @@
-"""A dataset split across processes as the reference splits it (spec §1.4): the shares of a weighted
+"""A dataset split across processes as the reference splits it: the shares of a weighted
 3-clip dataset for 1, 2 and 3 processes (and more processes than clips), the rounding and coverage
 rule for many sizes, the zero-weight share error, and a real 2-process `mimickit train --devices cpu cpu`."""
 

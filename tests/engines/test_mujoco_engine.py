@@ -222,7 +222,8 @@ def test_pd_holds_the_init_pose_for_5_seconds(humanoid_xml):
 
 
 def test_ball_joint_actuator_length_is_the_exp_map(humanoid_xml):
-    """The claim of spec §2.4: a ball-joint actuator with gear e_i has length = exp-map component i."""
+    """What the engine relies on to drive exp-map targets: a ball-joint actuator with gear e_i has
+    length = exp-map component i."""
     engine = make_engine(humanoid_xml, num_envs=3)
     engine.set_dof_pos(None, 0, random_dof(engine, 3, torch.Generator().manual_seed(2)))
     dof = engine.get_dof_pos(0).double().numpy()

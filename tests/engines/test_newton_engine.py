@@ -194,8 +194,9 @@ def test_ball_joint_cone_limit_binds_as_in_the_mujoco_engine(limits: str):
 
 
 def test_ball_joint_velocities_are_in_the_child_frame_in_any_setter_order():
-    """Spec §2.4, as in the MuJoCo engine: a ball joint's DoF velocity is its angular velocity in the child
-    frame (Newton's joint_qd holds it in the parent frame, which the engine converts)."""
+    """The engine contract (docs/architecture.md), as in the MuJoCo engine: a ball joint's DoF velocity
+    is its angular velocity in the child frame (Newton's joint_qd holds it in the parent frame, which the
+    engine converts)."""
     dof = torch.zeros(1, 28)
     dof[0, 0:3] = torch.tensor([0.0, 0.0, 1.5708])  # abdomen turned 90° about z
     vel = torch.zeros(1, 28)

@@ -32,7 +32,7 @@ def make(num_envs: int = 4, **overrides) -> ADDEnv:
 
 
 def disc_parts(disc_obs: torch.Tensor) -> dict[str, torch.Tensor]:
-    """The humanoid's ADD disc obs [N, 172] cut into named parts (spec §5.6)."""
+    """The humanoid's ADD disc obs [N, 172] cut into named parts, in the reference's order."""
     d = disc_obs
     return {
         "root_pos": d[:, 0:3], "root_rot": d[:, 3:9], "joint_rot": d[:, 9:93], "body_pos": d[:, 93:138],

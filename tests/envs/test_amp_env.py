@@ -26,7 +26,7 @@ def make(num_envs: int = 4, **overrides) -> AMPEnv:
 
 
 def char_obs_parts(obs: torch.Tensor) -> dict[str, torch.Tensor]:
-    """The humanoid's global char obs [N, 140] cut into named parts (spec §5.2)."""
+    """The humanoid's global char obs [N, 140] cut into named parts, in the reference's order."""
     return {
         "height": obs[:, 0:1], "root_rot": obs[:, 1:7], "root_vel": obs[:, 7:10], "root_ang_vel": obs[:, 10:13],
         "joint_rot": obs[:, 13:97], "dof_vel": obs[:, 97:125], "key_pos": obs[:, 125:140],

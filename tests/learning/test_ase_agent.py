@@ -73,7 +73,7 @@ def agent() -> ASEAgent:
 def test_sizes_and_checkpoint_keys(agent: ASEAgent):
     env = agent._env
     assert isinstance(env, ASEEnv)
-    assert env.get_disc_obs_space().shape == (1420,)  # spec §13
+    assert env.get_disc_obs_space().shape == (1420,)  # the reference's size: 10 steps × 142
     assert env.get_obs_space().shape == (140,)
     assert agent.get_latents().shape == (4, 64)
     state = agent.state_dict()
