@@ -1,4 +1,4 @@
-"""The engine interface: physics only (spec §2).
+"""The engine interface: physics only (the reference's engine API and conventions).
 
 An engine holds `N` independent worlds ("envs"), each with the same list of objects (character = 0,
 reference "ghost" character = 1 when visualised, then markers and props). It takes per-DoF commands,
@@ -44,7 +44,7 @@ MAX_SUBSTEPS = 1_000
 
 
 class ControlMode(IntEnum):
-    """How `set_cmd` values drive the joints (spec §2.4)."""
+    """How `set_cmd` values drive the joints (the reference's modes and numbers)."""
 
     none = 0  # no actuation
     pos = 1  # implicit PD toward position targets inside the solver

@@ -1,4 +1,4 @@
-"""Build the engine named by an engine config (the yaml `engine:` block, spec §2.1), the class taken from
+"""Build the engine named by an engine config (the yaml `engine:` block), the class taken from
 the `ENGINES` table in `engine` (where a new engine is registered: one line there, nothing here)."""
 
 from __future__ import annotations

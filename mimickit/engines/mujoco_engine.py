@@ -1,4 +1,4 @@
-"""The MuJoCo (CPU) engine: one compiled MjModel shared by all envs, one MjData per env (spec §2, §11.5).
+"""The MuJoCo (CPU) engine: one compiled MjModel shared by all envs, one MjData per env.
 
 Build: every object's MJCF is loaded with MjSpec, adapted (3-hinge bodies → one ball joint, passive
 stiffness/damping zeroed, its own motors dropped, a free root joint or a mocap root for `fix_root`) and
@@ -21,10 +21,10 @@ buffers that back the torch tensors the getters return (views: they stay live). 
 qpos/qvel rows and mark the envs dirty; the next getter or step pushes them into the MjData and
 recomputes the kinematics of those envs only (contact forces keep their last-step values until a step).
 
-Frames (spec §2.4): MuJoCo's free joint velocity is (origin linear velocity in world frame, angular
-velocity in body frame); the framework uses (centre-of-mass linear velocity, angular velocity), both
-world frame. Ball-joint qpos quaternions (w first) are exposed as exp-maps; ball qvel is already the
-local angular velocity.
+Frames (the engine contract in docs/architecture.md): MuJoCo's free joint velocity is (origin linear
+velocity in world frame, angular velocity in body frame); the framework uses (centre-of-mass linear
+velocity, angular velocity), both world frame. Ball-joint qpos quaternions (w first) are exposed as
+exp-maps; ball qvel is already the local angular velocity.
 
 Ball-joint limits (`ball_joint_limits`): "cone" limits each ball joint's rotation angle to the largest
 |bound| of its hinges' ranges (MuJoCo's ball limit, the same one the Newton engine sets), "none" leaves

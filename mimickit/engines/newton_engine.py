@@ -1,14 +1,15 @@
-"""The Newton engine: N worlds of one scene stepped by Newton's SolverMuJoCo (mujoco_warp) (spec §2, §11).
+"""The Newton engine: N worlds of one scene stepped by Newton's SolverMuJoCo (mujoco_warp).
 
-Build (spec §11.1, on the Newton 1.8 API): each distinct object gets one sub-builder from its MJCF
-(`add_mjcf`, 3-hinge bodies → one ball joint, as the MuJoCo engine does); every env is one Newton world
+Build (as the reference's Newton engine, on the Newton 1.8 API): each distinct object gets one
+sub-builder from its MJCF (`add_mjcf`, 3-hinge bodies → one ball joint, as the MuJoCo engine does);
+every env is one Newton world
 (`begin_world` / `add_builder` / `end_world`) next to one global ground plane; `finalize` on the warp
 device (the CPU here; CUDA where there is one). PD gains come from the MJCF joint stiffness/damping via
 the kinematic model (the same numbers the MuJoCo engine uses); they are moved into Newton's joint-target
 gains and the passive stiffness/damping is zeroed **before** the solver is built, since SolverMuJoCo
 creates its MuJoCo actuators at construction.
 
-Differences from the reference Newton engine (its defects, spec §11.4, fixed here):
+Differences from the reference Newton engine (its defects, fixed here):
 * `disable_motors` is honoured: the object's DoFs get no actuator (JointTargetMode.NONE).
 * `pd_explicit` computes τ = kp (q* − q) − kd q̇ in torch on DoF-sized tensors [N, D] (not on mixed q/qd
   warp arrays): q holds hinge angles and ball-joint exp-maps, q̇ hinge rates and ball-joint local angular
@@ -25,8 +26,9 @@ conventions: quaternions xyzw, free-joint and body linear velocities at the cent
 frame, angular velocities in world frame. Two conversions remain for ball joints: quaternions are exposed
 as exp-maps, and Newton's ball joint_qd / joint_f are angular velocity / torque in the *parent* frame
 (SolverMuJoCo maps MuJoCo's qvel = r⁻¹ joint_qd, r the joint rotation), which the engine rotates into the
-child frame of spec §2.4 and the MuJoCo engine (dof_vel, torque commands, dof_forces). Setters write
-joint_q/joint_qd and mark the state dirty; the next getter or step re-runs forward kinematics.
+child frame of the engine contract (docs/architecture.md) and the MuJoCo engine (dof_vel, torque
+commands, dof_forces). Setters write joint_q/joint_qd and mark the state dirty; the next getter or step
+re-runs forward kinematics.
 
 Fixed-root objects (`fix_root`) are welded where `create_obj` put them: root setters leave them there (the
 MuJoCo engine moves them as mocap bodies; the reference edits `joint_X_p` behind the solver's back).
@@ -349,7 +351,7 @@ class NewtonEngine(Engine):
         m.joint_target_kd.assign(kd)
         m.joint_target_mode.assign(mode)
         m.joint_effort_limit.assign(limit)
-        # The MJCF stiffness/damping are the PD gains (spec §2.4), not springs: zero the passive ones.
+        # The MJCF stiffness/damping are the PD gains (as in the reference), not springs: zero the passive ones.
         m.joint_stiffness.zero_()
         m.joint_damping.zero_()
 
