@@ -1,4 +1,4 @@
-"""Adversarial Differential Discriminators (spec §6.9): AMP whose discriminator judges differences.
+"""Adversarial Differential Discriminators, as the reference's ADD: AMP whose discriminator judges differences.
 
 Each rollout row holds the env's ADD disc obs of the character right after the step (`disc_obs`) and
 the same features of the reference at the same env's motion time (`disc_obs_demo`); the

@@ -1,4 +1,4 @@
-"""Typed configs of the agents (spec §6.1, §6.5, §6.6, §6.7, §6.8, §6.9, §6.12) and loading an agent yaml.
+"""Typed configs of the agents (the reference's agent yaml fields and defaults) and loading an agent yaml.
 
 The reference's agent yamls are the format. An unknown key, a wrong type or a missing required key is
 one `MimicKitError` naming the file and the key; numbers written like `1e-4` are numbers. Batch sizes
@@ -127,7 +127,7 @@ class AMPModelConfig(ActorCriticModelConfig):
 
 
 class AMPAgentConfig(PPOAgentConfig):
-    """PPO plus a discriminator that scores the env's disc obs against the clips' (spec §6.7)."""
+    """PPO plus a discriminator that scores the env's disc obs against the clips'."""
 
     agent_name: Literal["AMP"] = "AMP"  # type: ignore[assignment]
     model: AMPModelConfig
@@ -152,7 +152,7 @@ class AMPAgentConfig(PPOAgentConfig):
 
 
 class ADDAgentConfig(AMPAgentConfig):
-    """AMP's fields (spec §6.9): the discriminator scores the difference reference − agent of the env's
+    """AMP's fields: the discriminator scores the difference reference − agent of the env's
     ADD disc obs; a zero difference is its only positive sample."""
 
     agent_name: Literal["ADD"] = "ADD"  # type: ignore[assignment]
@@ -166,8 +166,7 @@ class ASEModelConfig(AMPModelConfig):
 
 
 class ASEAgentConfig(AMPAgentConfig):
-    """AMP plus skill latents, an encoder that recovers them from the disc obs and a diversity loss
-    (spec §6.8)."""
+    """AMP plus skill latents, an encoder that recovers them from the disc obs and a diversity loss."""
 
     agent_name: Literal["ASE"] = "ASE"  # type: ignore[assignment]
     model: ASEModelConfig

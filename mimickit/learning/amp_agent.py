@@ -1,4 +1,4 @@
-"""Adversarial Motion Priors (spec §6.7): PPO whose reward comes from a discriminator.
+"""Adversarial Motion Priors, as the reference's AMP: PPO whose reward comes from a discriminator.
 
 Per iteration, after PPO's rollout (which also records the env's disc obs of every step, post-step):
 1. fetch as many demo disc obs from the clips as the rollout holds (`disc_obs_demo`);

@@ -1,4 +1,4 @@
-"""Adversarial Skill Embeddings (spec §6.8): AMP whose policy is conditioned on a skill latent z.
+"""Adversarial Skill Embeddings, as the reference's ASE: AMP whose policy is conditioned on a skill latent z.
 
 * Every env holds a latent z ∈ R^latent_dim, uniform on the unit sphere. It is resampled when the env
   resets and when the env's time reaches the latent's reset time (time at sampling + U[latent_time_min,

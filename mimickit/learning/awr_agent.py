@@ -1,4 +1,4 @@
-"""Advantage-Weighted Regression (spec §6.6): PPO's rollout, critic and targets; a different actor loss.
+"""Advantage-Weighted Regression, as the reference's AWR: PPO's rollout, critic and targets; a different actor loss.
 
 Actor targets: a_weight = min(exp(Â / awr_temp), a_weight_clip) with the normalised advantage Â
 *not* clipped; actor loss = −mean(a_weight · log π(a|s)) over exploring rows, plus the same

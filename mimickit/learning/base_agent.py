@@ -1,4 +1,4 @@
-"""The training loop shared by every agent (spec §6.1).
+"""The training loop shared by every agent, as the reference's `BaseAgent`.
 
 An agent owns the observation and action normalisers, its model and optimisers, an experience buffer
 of `steps_per_iter` rows × `num_envs`, and train/test return trackers. It talks to the env only

@@ -1,4 +1,4 @@
-"""An agent that always outputs zero actions (spec §6.10): for view_motion and DoF-test envs.
+"""An agent that always outputs zero actions (the reference's `Dummy`): for view_motion and DoF-test envs.
 
 No model and no optimiser; only the normalisers (so `save`/`load` still work). Zero is the env action
 itself, not the centre of the action range.

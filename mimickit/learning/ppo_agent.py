@@ -1,4 +1,4 @@
-"""Proximal Policy Optimisation, as the reference does it (spec §6.5).
+"""Proximal Policy Optimisation, as the reference does it.
 
 Per iteration: roll out `steps_per_iter` steps of every env (each env explores with probability
 `exp_prob`, else acts with the mean); compute TD(λ) targets and advantages once with the critic and
