@@ -261,7 +261,7 @@ def _hinges_to_ball(spec: mujoco.MjSpec, body: mujoco.MjsBody, name: str, armatu
 
 def _set_ball_limit(ball: mujoco.MjsJoint, cone: float | None, degree: bool) -> None:
     """Limit a ball joint's rotation angle to `cone` (rad; MuJoCo's ball limit is this cone, range[1] with
-    range[0] = 0), or leave it unlimited for None. `degree`: the spec compiles angles in degrees (MuJoCo's
+    range[0] = 0), or leave it unlimited for None. `degree`: the MjSpec compiles angles in degrees (MuJoCo's
     default when the MJCF does not say angle="radian", e.g. SMPL)."""
     if cone is None:
         ball.limited = mujoco.mjtLimited.mjLIMITED_FALSE
