@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import abc
 import math
-import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -74,7 +73,8 @@ class EngineConfig(ConfigModel):
     sim_freq: int = Field(60, le=MAX_SIM_FREQ)
     """Physics rate in Hz; a multiple of control_freq, at most MAX_SUBSTEPS times it."""
     env_spacing: float = Field(ge=0)
-    """Grid spacing (m) between envs when drawn; the envs themselves do not share a world."""
+    """Grid spacing (m) between envs in the reference's viewer (kept so that its yamls load); the envs do not
+    share a world, and the studio draws one env at a time."""
     ball_joint_limits: Literal["cone", "none"] = "cone"
     """How 3-D (ball) joints are limited. "cone": the joint's total rotation angle stays below the largest
     |bound| of its three hinge ranges (so no single-axis motion the MJCF allows is cut): the only ball-joint
@@ -212,16 +212,13 @@ class Engine(abc.ABC):
     """Base class of the physics engines; see the module docstring for shapes and frames."""
 
     def __init__(self, config: EngineConfig, num_envs: int, device: torch.device | str, visualize: bool = False):
+        """`visualize` is taken as the reference's engines take it; no engine draws itself (viewers draw
+        from `mujoco_view`)."""
         self._config = config
         self._num_envs = int(num_envs)
         self._device = torch.device(device)
-        self._visualize = visualize
         self._env_objs: list[list[ObjRecord]] = []  # per env, per object
         self._start_poses: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per env, per obj: (pos[3], xyzw[4])
-        self._keyboard_callbacks: dict[str, Callable[[], None]] = {}
-        self._camera_pos = np.array([-3.5, -3.5, 1.0])
-        self._camera_dir = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
-        self._last_render_time = 0.0
 
     @property
     def config(self) -> EngineConfig:
@@ -364,53 +361,6 @@ class Engine(abc.ABC):
     @abc.abstractmethod
     def get_objs_per_env(self) -> int: ...
 
-    def get_env_offsets(self) -> np.ndarray:
-        """[N, 3] grid offsets (env_spacing apart) for drawing envs side by side; physics ignores them."""
-        spacing = self._config.env_spacing
-        per_row = int(np.ceil(np.sqrt(self._num_envs)))
-        idx = np.arange(self._num_envs)
-        return np.stack([(idx % per_row) * spacing, (idx // per_row) * spacing, np.zeros(self._num_envs)], axis=-1)
-
-    # ------------------------------------------------------------------ viewer hooks (no-ops by default)
-    def render(self) -> None:
-        """Draw a frame; sleeps so that wall time per frame is at least dt."""
-        now = time.perf_counter()
-        wait = self.get_timestep() - (now - self._last_render_time)
-        if wait > 0:
-            time.sleep(wait)
-        self._last_render_time = time.perf_counter()
-
-    def set_camera_pose(self, pos: np.ndarray, look_at: np.ndarray) -> None:
-        self._camera_pos = np.asarray(pos, dtype=np.float64)
-        d = np.asarray(look_at, dtype=np.float64) - self._camera_pos
-        self._camera_dir = d / max(float(np.linalg.norm(d)), 1e-9)
-
-    def get_camera_pos(self) -> np.ndarray:
-        return self._camera_pos.copy()
-
-    def get_camera_dir(self) -> np.ndarray:
-        return self._camera_dir.copy()
-
-    def draw_lines(self, env_id: int, starts: np.ndarray, ends: np.ndarray, cols: np.ndarray, width: float) -> None:
-        """Debug lines starts/ends [n, 3], cols [n, 4]; ignored without a viewer."""
-        return None
-
-    def register_keyboard_callback(self, key_str: str, fn: Callable[[], None]) -> None:
-        self._keyboard_callbacks[key_str] = fn
-
-    def enabled_record_video(self) -> bool:
-        return False
-
-    def start_video_recording(self) -> None:
-        """Start a new recording (no recorder by default)."""
-        return None
-
-    def stop_video_recording(self) -> None:
-        return None
-
-    def get_video_recording(self) -> Any:
-        return None
-
     # ------------------------------------------------------------------ what viewers and the bench read
     @abc.abstractmethod
     def mujoco_view(self, env_id: int = 0) -> MujocoView:
@@ -543,30 +493,7 @@ class Engine(abc.ABC):
     def _obj_kin(self, obj_id: int) -> KinCharModel:
         """The kinematic model of object `obj_id` (its joints and DoF layout)."""
 
-    @abc.abstractmethod
-    def set_body_pos(self, env_ids: EnvIds, obj_id: int, body_pos: torch.Tensor | float) -> None:
-        """Overwrite the returned body-position buffer rows [n, B, 3] (not the physics)."""
-
-    @abc.abstractmethod
-    def set_body_rot(self, env_ids: EnvIds, obj_id: int, body_rot: torch.Tensor | float) -> None:
-        """Overwrite the returned body-rotation buffer rows [n, B, 4] (not the physics)."""
-
-    @abc.abstractmethod
-    def set_body_vel(self, env_ids: EnvIds, obj_id: int, body_vel: torch.Tensor | float) -> None:
-        """Overwrite the returned body-velocity buffer rows [n, B, 3] (not the physics)."""
-
-    @abc.abstractmethod
-    def set_body_ang_vel(self, env_ids: EnvIds, obj_id: int, body_ang_vel: torch.Tensor | float) -> None:
-        """Overwrite the returned body-angular-velocity buffer rows [n, B, 3] (not the physics)."""
-
-    @abc.abstractmethod
-    def set_body_forces(self, env_ids: EnvIds, obj_id: int, body_id: int, forces: torch.Tensor | float) -> None:
-        """World-frame forces [n, 3] at body `body_id`'s centre of mass for the next control step."""
-
     # ------------------------------------------------------------------ model queries
-    @abc.abstractmethod
-    def get_obj_type(self, obj_id: int) -> ObjType: ...
-
     @abc.abstractmethod
     def get_obj_num_dofs(self, obj_id: int) -> int: ...
 

@@ -410,8 +410,6 @@ class MujocoEngine(Engine):
         self._ctrl = np.zeros((self._num_envs, m.nu))
         self._pd_target = np.zeros((self._num_envs, m.nu))
         self._act_kp, self._act_kd = self._actuator_gains()
-        self._xfrc = np.zeros((self._num_envs, m.nbody, 6))
-        self._force_envs = np.zeros(self._num_envs, dtype=bool)
         self._dirty = np.zeros(self._num_envs, dtype=bool)
         self._states = [_ObjState(self._num_envs, lay.num_bodies, lay.num_dofs, self._device) for lay in self._layouts]
         self._place_start_poses()
@@ -595,7 +593,6 @@ class MujocoEngine(Engine):
 
     def step(self, concurrent: Callable[[], None] | None = None) -> None:
         self._push_edits()
-        self._push_body_forces()
         nsub = self._config.substeps
         if nsub > 1:
             # The sensors (our contact-force readout, ~6% of a substep) are read only after the last
@@ -609,7 +606,6 @@ class MujocoEngine(Engine):
                 opt.disableflags = flags
             concurrent = None
         self._run_workers(1, first=nsub == 1, last=True, concurrent=concurrent)
-        self._clear_body_forces()
         # Gather and refresh once here rather than per chunk in the workers: measured as fast or faster
         # (numpy ops in a worker hold the GIL that the other workers need between mj_step calls).
         self._gather(slice(None))
@@ -674,16 +670,6 @@ class MujocoEngine(Engine):
                 finish(m, d)
             if last:
                 _update_kinematics(m, d)
-
-    def _push_body_forces(self) -> None:
-        for i in np.flatnonzero(self._force_envs):
-            self.mj_datas[i].xfrc_applied[:] = self._xfrc[i]
-
-    def _clear_body_forces(self) -> None:
-        for i in np.flatnonzero(self._force_envs):
-            self.mj_datas[i].xfrc_applied[:] = 0.0
-        self._xfrc[self._force_envs] = 0.0
-        self._force_envs[:] = False
 
     # ------------------------------------------------------------------ state sync
     def _gather(self, rows: slice | np.ndarray) -> None:
@@ -866,28 +852,6 @@ class MujocoEngine(Engine):
         self._host["qvel"][np.ix_(ids, lay.dof_qvel)] = _rows(dof_vel, len(ids), lay.num_dofs)
         self._dirty[ids] = True
 
-    def _set_body_buffer(self, env_ids: EnvIds, buf: torch.Tensor, value: torch.Tensor | float) -> None:
-        self._sync()  # physics-derived rows first, so that this overwrite is what the next getter returns
-        ids = torch.as_tensor(self._env_ids(env_ids), dtype=torch.long, device=buf.device)
-        buf[ids] = torch.as_tensor(value, dtype=buf.dtype, device=buf.device).expand(len(ids), *buf.shape[1:])
-
-    def set_body_pos(self, env_ids: EnvIds, obj_id: int, body_pos: torch.Tensor | float) -> None:
-        self._set_body_buffer(env_ids, self._states[obj_id].tensors["body_pos"], body_pos)
-
-    def set_body_rot(self, env_ids: EnvIds, obj_id: int, body_rot: torch.Tensor | float) -> None:
-        self._set_body_buffer(env_ids, self._states[obj_id].tensors["body_rot"], body_rot)
-
-    def set_body_vel(self, env_ids: EnvIds, obj_id: int, body_vel: torch.Tensor | float) -> None:
-        self._set_body_buffer(env_ids, self._states[obj_id].tensors["body_vel"], body_vel)
-
-    def set_body_ang_vel(self, env_ids: EnvIds, obj_id: int, body_ang_vel: torch.Tensor | float) -> None:
-        self._set_body_buffer(env_ids, self._states[obj_id].tensors["body_ang_vel"], body_ang_vel)
-
-    def set_body_forces(self, env_ids: EnvIds, obj_id: int, body_id: int, forces: torch.Tensor | float) -> None:
-        ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
-        self._xfrc[ids, lay.body_ids[body_id], :3] = _rows(forces, len(ids), 3)
-        self._force_envs[ids] = True
-
     def set_root_state(
         self,
         env_ids: EnvIds,
@@ -984,9 +948,6 @@ class MujocoEngine(Engine):
 
     def get_objs_per_env(self) -> int:
         return len(self._env_objs[0]) if self._env_objs else 0
-
-    def get_obj_type(self, obj_id: int) -> ObjType:
-        return self._env_objs[0][obj_id].obj_type
 
     def get_obj_num_dofs(self, obj_id: int) -> int:
         return self._layouts[obj_id].num_dofs

@@ -460,13 +460,10 @@ class NewtonEngine(Engine):
         self._jqd = wp.to_torch(s.joint_qd).view(n, -1)
         self._bq = wp.to_torch(s.body_q).view(n, self._bodies_per_world, 7)
         self._bqd = wp.to_torch(s.body_qd).view(n, self._bodies_per_world, 6)
-        self._bf = wp.to_torch(s.body_f).view(n, self._bodies_per_world, 6)
         self._target_q = wp.to_torch(c.joint_target_q).view(n, -1)
         self._target_qd = wp.to_torch(c.joint_target_qd).view(n, -1)
         self._joint_f = wp.to_torch(c.joint_f).view(n, -1)
         self._qfrc = wp.to_torch(self.observables.qfrc_actuator).view(n, -1)
-        self._force_buf = torch.zeros(n, self._bodies_per_world, 3, device=self._device)
-        self._has_forces = False
 
     def _place_start_poses(self) -> None:
         """Free roots start at their env's start pose (fixed roots got theirs in the model)."""
@@ -505,8 +502,6 @@ class NewtonEngine(Engine):
         nsub = self._config.substeps
         for i in range(nsub):
             self.state.clear_forces()
-            if self._has_forces:
-                self._bf[..., :3] = self._force_buf
             if self._config.control_mode == ControlMode.pd_explicit:
                 self._apply_explicit_pd()
             elif self._config.control_mode == ControlMode.torque:
@@ -518,9 +513,6 @@ class NewtonEngine(Engine):
             self.sensor.update(self.state, self.contacts, observables=self.observables)
         if concurrent is not None:  # on a GPU the kernels above are queued, not yet run: this overlaps them
             concurrent()
-        if self._has_forces:
-            self._force_buf.zero_()
-            self._has_forces = False
         self._refresh(contacts=True)
         self._sim_time += self.get_timestep()
 
@@ -721,28 +713,6 @@ class NewtonEngine(Engine):
             self._write_ball_vel(lay, ids, vel[:, lay.ball_cols])
         self._dirty = True
 
-    def _set_body_buffer(self, env_ids: EnvIds, obj_id: int, key: str, value: torch.Tensor | float) -> None:
-        buf = self._get(obj_id, key)  # physics-derived rows first, so this overwrite is what getters return
-        ids = self._ids(env_ids).to(buf.device)
-        buf[ids] = torch.as_tensor(value, dtype=buf.dtype, device=buf.device).expand(len(ids), *buf.shape[1:])
-
-    def set_body_pos(self, env_ids: EnvIds, obj_id: int, body_pos: torch.Tensor | float) -> None:
-        self._set_body_buffer(env_ids, obj_id, "body_pos", body_pos)
-
-    def set_body_rot(self, env_ids: EnvIds, obj_id: int, body_rot: torch.Tensor | float) -> None:
-        self._set_body_buffer(env_ids, obj_id, "body_rot", body_rot)
-
-    def set_body_vel(self, env_ids: EnvIds, obj_id: int, body_vel: torch.Tensor | float) -> None:
-        self._set_body_buffer(env_ids, obj_id, "body_vel", body_vel)
-
-    def set_body_ang_vel(self, env_ids: EnvIds, obj_id: int, body_ang_vel: torch.Tensor | float) -> None:
-        self._set_body_buffer(env_ids, obj_id, "body_ang_vel", body_ang_vel)
-
-    def set_body_forces(self, env_ids: EnvIds, obj_id: int, body_id: int, forces: torch.Tensor | float) -> None:
-        ids, lay = self._ids(env_ids), self._layouts[obj_id]
-        self._force_buf[ids, lay.bodies.start + body_id] = self._rows(forces, len(ids), 3)
-        self._has_forces = True
-
     # ------------------------------------------------------------------ queries
     def get_sim_time(self) -> float:
         return self._sim_time
@@ -752,9 +722,6 @@ class NewtonEngine(Engine):
 
     def get_objs_per_env(self) -> int:
         return len(self._env_objs[0]) if self._env_objs else 0
-
-    def get_obj_type(self, obj_id: int) -> ObjType:
-        return self._env_objs[0][obj_id].obj_type
 
     def get_obj_num_dofs(self, obj_id: int) -> int:
         return self._layouts[obj_id].num_dofs
