@@ -17,7 +17,7 @@ import torch
 from mimickit.anim.char_geometry import body_surface_points, lowest_point_z
 from mimickit.anim.kin_char_model import JointType, KinCharModel
 from mimickit.anim.mjcf_char_model import load_char_model
-from mimickit.anim.motion import Motion
+from mimickit.anim.motion import LoopMode, Motion
 from mimickit.tools.motion_report import check_frame_dim
 from mimickit.util import torch_util as tu
 from studio.parsing import read_motion
@@ -72,6 +72,30 @@ def pose_clip(clip_path: Path, char_path: Path) -> ClipPose:
         motion = read_motion(clip_path)  # a user's file: with the guarded loader's budget
         char = load_char_model(char_path)
     check_frame_dim(motion, char, clip_path)
+    return pose_motion(clip_path, char_path, motion, char)
+
+
+def default_pose(char_path: Path) -> ClipPose:
+    """The character in its MJCF default pose (every DoF 0, root unrotated) as a one-frame clip, lifted
+    so that its lowest collision point touches the ground; MimicKitError when the MJCF does not load."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        char = load_char_model(char_path)
+        ids, pts = body_surface_points(char, char.get_body_names())
+    frame = np.zeros((1, 6 + char.get_dof_size()), dtype=np.float32)
+    frame[0, :3] = char.local_pos[0].numpy()
+    if len(ids):
+        pos, rot = char.forward_kinematics(
+            torch.from_numpy(frame[:, :3]),
+            tu.exp_map_to_quat(torch.zeros(1, 3)),
+            char.dof_to_rot(torch.from_numpy(frame[:, 6:])),
+        )
+        frame[0, 2] -= float(lowest_point_z(char, ids, pts, pos, rot)[0])
+    return pose_motion(char_path, char_path, Motion(LoopMode.CLAMP, 30.0, frame), char)
+
+
+def pose_motion(clip_path: Path, char_path: Path, motion: Motion, char: KinCharModel) -> ClipPose:
+    """Every frame of `motion` posed on `char` (their widths already checked)."""
     frames = torch.from_numpy(motion.frames)
     root_rot = tu.exp_map_to_quat(frames[:, 3:6])
     joint_rot = char.dof_to_rot(frames[:, 6:])

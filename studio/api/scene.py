@@ -15,8 +15,10 @@ from pydantic import Field
 from mimickit.util.errors import MimicKitError
 from studio.api import need, studio_of
 from studio.api.bodies import OneLineErrors, StrictBody
+from studio.api.library import character_path
 from studio.checkpoints import check_finite_checkpoint
-from studio.clip_pose import pose_clip
+from studio.clip_pose import default_pose, pose_clip
+from studio.library import characters_tried, no_character_line
 from studio.player import Player
 from studio.rollout import RolloutPlayer, source_for_checkpoint
 from studio.runs import CHECKPOINT
@@ -29,6 +31,10 @@ class LoadClip(StrictBody):
     path: str = Field(description="a clip: `data/motions/...` or a path inside the data/runs folders")
     char: str | None = Field(None, description="an MJCF character; guessed from the clip's frame width if absent")
     play: bool = Field(False, description="start playing at once")
+
+
+class ShowCharacter(StrictBody):
+    path: str = Field(description="an MJCF character under a data folder's `assets/`")
 
 
 class LoadRollout(StrictBody):
@@ -94,6 +100,18 @@ def load_clip(body: LoadClip, request: Request) -> dict[str, Any]:
     return player.snapshot()
 
 
+@router.post("/show_character")
+def show_character(body: ShowCharacter, request: Request) -> dict[str, Any]:
+    """Show a character in its default pose (every DoF 0, standing on the ground) as a one-frame clip
+    (`clip` and `char` in the state are the MJCF); its bodies and joints: `GET /api/characters/pose`."""
+    studio = studio_of(request)
+    player = _player(request)
+    pose = default_pose(character_path(studio, body.path))
+    studio.end_rollout()
+    player.load(pose, play=False)
+    return player.snapshot()
+
+
 @router.post("/load_rollout")
 def load_rollout(body: LoadRollout, request: Request) -> dict[str, Any]:
     """Roll out a run's checkpoint (`run_id`) or a checkpoint file: its deterministic policy in one
@@ -120,12 +138,26 @@ def load_rollout(body: LoadRollout, request: Request) -> dict[str, Any]:
         k: confine(v, roots) if (v := getattr(body, k)) else None
         for k in ("env_config", "agent_config", "engine_config")
     }
+    return roll_out(studio, checkpoint, configs, play=body.play, run_id=body.run_id, run_name=run_name)
+
+
+def roll_out(
+    studio: Any,
+    checkpoint: Path,
+    configs: dict[str, Path | None],
+    *,
+    play: bool,
+    run_id: int | None = None,
+    run_name: str | None = None,
+) -> dict[str, Any]:
+    """Show the rollout of `checkpoint` on `configs` (None: the ones beside it); its state. A broken
+    checkpoint or config is a 400 with one line."""
     try:
-        source = source_for_checkpoint(checkpoint, run_id=body.run_id, run_name=run_name, **configs)
+        source = source_for_checkpoint(checkpoint, run_id=run_id, run_name=run_name, **configs)
         check_finite_checkpoint(checkpoint)  # unreadable or diverged (NaN weights): one line, before any build
         if source.data_dir is None:
-            source.data_dir = s.data_dir
-        rp = studio.load_rollout(source, play=body.play)
+            source.data_dir = studio.settings.data_dir
+        rp = studio.load_rollout(source, play=play)
     except MimicKitError:
         raise
     except Exception as e:  # noqa: BLE001 - a broken config is the user's to fix: one line, not a traceback
@@ -273,9 +305,15 @@ def _char_for(studio: Any, shown: str, clip: Path, char: str | None) -> Path:
     if char is not None:
         return confine(char, roots)
     info = next((m for m in studio.library.motions() if m["path"] in (shown, str(clip))), None)
-    guessed = studio.library.character_for_width(info["frame_dim"], clip) if info and info.get("frame_dim") else None
+    if info is None:  # not listed (yet): its header read now
+        info = studio.library.motion_info(clip)
+    if "error" in info:
+        raise HTTPException(400, info["error"])
+    chars = studio.library.characters()
+    guessed = studio.library.character_for_width(info["frame_dim"], clip, chars)
     if guessed is None:
-        raise HTTPException(400, f"{shown}: no character fits this clip; name one with `char`")
+        why = no_character_line(info["frame_dim"], characters_tried(info["frame_dim"], chars))
+        raise HTTPException(400, f"{shown}: {why}; name one with `char`")
     return confine(guessed, roots)
 
 
