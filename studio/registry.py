@@ -59,11 +59,25 @@ CREATE TABLE IF NOT EXISTS runs (
     exit_code INTEGER,
     command TEXT,                  -- JSON argv of the latest process, recorded for reproducibility
     attempts INTEGER NOT NULL DEFAULT 0,
-    reason TEXT                    -- the line that says why it ended (diverged/failed), from the run folder
+    reason TEXT,                   -- the line that says why it ended (diverged/failed), from the run folder
+    executor TEXT NOT NULL DEFAULT 'local',  -- what runs its processes: local (subprocesses) or ray (Ray jobs)
+    job_id TEXT,                   -- the executor's id of the latest process: a pid, a Ray submission id
+    sweep_id INTEGER               -- the sweep it belongs to (one group in the run list), or NULL
+);
+CREATE TABLE IF NOT EXISTS sweeps (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    name TEXT NOT NULL,
+    spec TEXT NOT NULL,            -- JSON: the arg file, the lists of values and the shared overrides
+    created_at REAL NOT NULL
 )
 """
 # Columns added after the first release: (name, declaration), added to an older registry when opened.
-_ADDED_COLUMNS = [("reason", "TEXT")]
+_ADDED_COLUMNS = [
+    ("reason", "TEXT"),
+    ("executor", "TEXT NOT NULL DEFAULT 'local'"),
+    ("job_id", "TEXT"),
+    ("sweep_id", "INTEGER"),
+]
 
 
 @dataclass
@@ -81,6 +95,9 @@ class Run:
     command: list[str] | None
     attempts: int
     reason: str | None = None
+    executor: str = "local"
+    job_id: str | None = None
+    sweep_id: int | None = None
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -95,7 +112,7 @@ class Registry:
         self._lock = threading.Lock()  # one writer at a time inside this process
         with self._connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
-            db.execute(_SCHEMA)
+            db.executescript(_SCHEMA)
             have = {row["name"] for row in db.execute("PRAGMA table_info(runs)")}
             for name, decl in _ADDED_COLUMNS:
                 if name not in have:
@@ -111,13 +128,22 @@ class Registry:
         finally:
             db.close()
 
-    def create(self, name: str, config: dict[str, Any], out_dir_for: Callable[[int], str]) -> Run:
+    def create(
+        self,
+        name: str,
+        config: dict[str, Any],
+        out_dir_for: Callable[[int], str],
+        *,
+        executor: str = "local",
+        sweep_id: int | None = None,
+    ) -> Run:
         """Insert a queued run; its out_dir comes from its new id, in the same transaction, so no
         reader (the run manager's thread) ever sees a queued run without its folder."""
         with self._lock, self._connect() as db:
             cur = db.execute(
-                "INSERT INTO runs (name, config, status, created_at, out_dir) VALUES (?, ?, ?, ?, '')",
-                (name, json.dumps(config), RunStatus.QUEUED.value, time.time()),
+                "INSERT INTO runs (name, config, status, created_at, out_dir, executor, sweep_id)"
+                " VALUES (?, ?, ?, ?, '', ?, ?)",
+                (name, json.dumps(config), RunStatus.QUEUED.value, time.time(), executor, sweep_id),
             )
             run_id = int(cur.lastrowid)
             db.execute("UPDATE runs SET out_dir = ? WHERE id = ?", (out_dir_for(run_id), run_id))
@@ -161,6 +187,26 @@ class Registry:
     def delete(self, run_id: int) -> None:
         with self._lock, self._connect() as db:
             db.execute("DELETE FROM runs WHERE id = ?", (run_id,))
+
+    def create_sweep(self, name: str, spec: dict[str, Any]) -> int:
+        """A new sweep (a named group of runs); its runs name it with `sweep_id`."""
+        with self._lock, self._connect() as db:
+            cur = db.execute(
+                "INSERT INTO sweeps (name, spec, created_at) VALUES (?, ?, ?)", (name, json.dumps(spec), time.time())
+            )
+            return int(cur.lastrowid)
+
+    def sweeps(self) -> list[dict[str, Any]]:
+        """Every sweep with the ids of its runs, oldest first."""
+        with self._connect() as db:
+            rows = db.execute("SELECT * FROM sweeps ORDER BY id").fetchall()
+            members = db.execute("SELECT id, sweep_id FROM runs WHERE sweep_id IS NOT NULL ORDER BY id").fetchall()
+        out = [{**dict(r), "spec": json.loads(r["spec"]), "run_ids": []} for r in rows]
+        by_id = {s["id"]: s for s in out}
+        for m in members:
+            if m["sweep_id"] in by_id:
+                by_id[m["sweep_id"]]["run_ids"].append(m["id"])
+        return out
 
 
 def _row_to_run(row: sqlite3.Row) -> Run:

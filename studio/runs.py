@@ -1,26 +1,22 @@
-"""The run manager: training runs as subprocesses, at most N at once, the rest queued.
+"""The run manager: the registry's queued runs started through an executor, followed to their end.
 
-Every run is its own OS process (`mimickit train ...`) in its own process group, working in and
-writing to its run folder (`mimickit.run_folder`: args.json, configs, metrics.jsonl, model.pt,
-state.json; the manager adds console.log with its stdout/stderr). When a trainer exits, the run's end
-state (finished / stopped / diverged / failed, with the line that says why) is the one its state.json
-records; the exit code only speaks when the trainer recorded nothing. One manager thread starts and
-reaps all processes. On Linux each child asks the kernel to send it
-SIGTERM when that thread dies, so a killed server never leaves a trainer running that nobody watches:
-the trainer saves its checkpoint, and the next server marks the run `interrupted`, ready to resume.
+Every run's process (`mimickit train ...`) works in and writes to its run folder (`mimickit.run_folder`:
+args.json, configs, metrics.jsonl, model.pt, state.json; console.log with its output). The executor
+(`studio.executors`: local subprocesses or Ray jobs) starts, stops and reports on the processes; this
+manager keeps the registry's status in step. With the local executor it also keeps the queue (at most
+`--max-concurrent-runs` at once); Ray takes every queued run at once and queues them itself. When a
+process ends, the run's end state (finished / stopped / diverged / failed, with the line that says why)
+is the one its state.json records; the exit code only speaks when the trainer recorded nothing. One
+manager thread submits and polls all jobs. A new server re-attaches to the jobs its registry names that
+are still going and marks the gone ones `interrupted`, ready to resume.
 """
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import ctypes.util
-import functools
 import os
 import re
 import shutil
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -29,6 +25,7 @@ from typing import Any
 
 from mimickit.run_folder import MODEL_FILE, EndState, RunFolder
 from mimickit.util.paths import IMPORT_ROOT
+from studio.executors import Executor, Job, JobState, Launch, make_executor
 from studio.registry import ACTIVE, Registry, Run, RunStatus
 from studio.run_summary import run_summary, seed_of
 from studio.settings import Settings
@@ -56,8 +53,10 @@ def train_command(
     rand_seed: int | None = None,
     data_dir: str | Path | None = None,
     model_file: str | Path | None = None,
+    extra: dict[str, str] | None = None,
 ) -> list[str]:
-    """The argv of one training process: `trainer` (`mimickit train`) plus MimicKit's arguments."""
+    """The argv of one training process: `trainer` (`mimickit train`) plus MimicKit's arguments
+    (`extra`: further `--key value` pairs, e.g. a sweep's)."""
     argv = [*trainer, "--arg_file", str(arg_file), "--out_dir", str(out_dir)]
     optional = {
         "num_envs": num_envs,
@@ -67,19 +66,18 @@ def train_command(
         "data_dir": data_dir,
         "model_file": model_file,
     }
-    for key, value in optional.items():
+    for key, value in {**optional, **(extra or {})}.items():
         if value is not None:
             argv += [f"--{key}", str(value)]
     return argv
 
 
 class RunManager:
-    def __init__(self, settings: Settings, registry: Registry) -> None:
+    def __init__(self, settings: Settings, registry: Registry, executor: Executor | None = None) -> None:
         self.settings = settings
         self.registry = registry
-        self._procs: dict[int, subprocess.Popen[bytes]] = {}
-        self._adopted: dict[int, int] = {}  # run id -> pid of a process a previous server started
-        self._kill_at: dict[int, float] = {}  # run id -> time to SIGKILL a run that ignores SIGTERM
+        self.executor = executor or make_executor(settings)
+        self._jobs: dict[int, str] = {}  # run id -> job id of its submitted (pending or running) process
         self._lock = threading.RLock()
         self._wake = threading.Event()
         self._closed = threading.Event()
@@ -89,29 +87,37 @@ class RunManager:
 
     # -- requests (any thread) ----------------------------------------------------------------------
 
-    def submit(self, name: str, config: dict[str, Any]) -> Run:
-        """Queue a new run; it starts as soon as a slot is free."""
-        run = self.registry.create(name, config, lambda i: str(self.settings.runs_dir / f"{i:04d}-{_slug(name)}"))
+    def submit(self, name: str, config: dict[str, Any], sweep_id: int | None = None) -> Run:
+        """Queue a new run; it starts as soon as a slot is free (local) or Ray has its resources."""
+        run = self.registry.create(
+            name,
+            config,
+            lambda i: str(self.settings.runs_dir / f"{i:04d}-{_slug(name)}"),
+            executor=self.executor.name,
+            sweep_id=sweep_id,
+        )
         self._wake.set()
         return run
 
     def stop(self, run_id: int) -> Run:
-        """Queued: never starts. Running: SIGTERM (the trainer checkpoints and exits), SIGKILL if slow."""
+        """Not submitted: never starts. Submitted: the executor's stop (SIGTERM, the trainer checkpoints
+        and exits; SIGKILL after the stop timeout)."""
         with self._lock:
             run = self.get(run_id)
-            if run.status == RunStatus.QUEUED:
+            job_id = self._jobs.get(run_id)
+            if run.status == RunStatus.QUEUED and job_id is None:
                 return self.registry.update(run_id, status=RunStatus.STOPPED, ended_at=time.time())
-            if run.status not in ACTIVE:
+            if run.status not in (*ACTIVE, RunStatus.QUEUED):
                 raise RunError(f"run {run_id} is {run.status.value}, not running")
-            if run.status == RunStatus.RUNNING:
+            if run.status != RunStatus.STOPPING:
                 run = self.registry.update(run_id, status=RunStatus.STOPPING)
-                self._signal(run, signal.SIGTERM)
-                self._kill_at[run_id] = time.monotonic() + self.settings.stop_timeout_s
+                if job_id is not None:
+                    self.executor.stop(job_id)
             return run
 
     def resume(self, run_id: int, max_samples: int | None = None) -> Run:
-        """Queue an ended run again: a new process in the same folder, from its checkpoint, with the
-        budget `max_samples` (total samples, more than it has trained) or the one it had."""
+        """Queue an ended run again: a new process (a new job) in the same folder, from its checkpoint,
+        with the budget `max_samples` (total samples, more than it has trained) or the one it had."""
         with self._lock:
             run = self.get(run_id)
             if not run.status.finished:
@@ -132,7 +138,15 @@ class RunManager:
                     f"run {run_id} reached its budget ({done} samples); give a larger max_samples to continue it"
                 )
             run = self.registry.update(
-                run_id, status=RunStatus.QUEUED, config=config, pid=None, exit_code=None, ended_at=None, reason=None
+                run_id,
+                status=RunStatus.QUEUED,
+                config=config,
+                pid=None,
+                job_id=None,
+                exit_code=None,
+                ended_at=None,
+                reason=None,
+                executor=self.executor.name,
             )
         self._wake.set()
         return run
@@ -150,7 +164,7 @@ class RunManager:
         """Remove the row and the run's folder (only ever a folder inside the runs folder)."""
         with self._lock:
             run = self.get(run_id)
-            if run.status in ACTIVE:
+            if run.status in ACTIVE or run_id in self._jobs:
                 raise RunError(f"run {run_id} is {run.status.value}; stop it before deleting it")
             self.registry.delete(run_id)
         out_dir = Path(run.out_dir).resolve() if run.out_dir else None
@@ -158,10 +172,22 @@ class RunManager:
         if out_dir and out_dir != runs_dir and out_dir.is_relative_to(runs_dir) and out_dir.is_dir():
             shutil.rmtree(out_dir, ignore_errors=True)
 
+    def logs(self, run_id: int) -> str:
+        """The output of the run's latest process: the executor's (Ray keeps a job's log while it
+        runs) or, once ended or with the local executor, the run folder's console.log."""
+        run = self.get(run_id)
+        job_id = self._jobs.get(run_id)
+        text = self.executor.logs(job_id) if job_id is not None else None
+        if text is not None:
+            return text
+        path = RunFolder(run.out_dir).console_file
+        return path.read_text(errors="replace") if path.is_file() else ""
+
     def close(self) -> None:
         self._closed.set()
         self._wake.set()
         self._thread.join(timeout=5)
+        self.executor.close()
 
     # -- the manager thread ---------------------------------------------------------------------------
 
@@ -169,55 +195,84 @@ class RunManager:
         while not self._closed.is_set():
             try:
                 with self._lock:
-                    self._reap()
+                    self._poll()
                     self._fill_slots()
             except Exception as e:  # keep managing the other runs; the error goes to the server log
                 print(f"run manager: {e!r}", file=sys.stderr)
             self._wake.wait(POLL_S)
             self._wake.clear()
 
-    def _reap(self) -> None:
-        for run_id, proc in list(self._procs.items()):
-            code = proc.poll()
-            if code is not None:
-                del self._procs[run_id]
-                self._finish(run_id, code)
-        for run_id, pid in list(self._adopted.items()):
-            if not _pid_alive(pid):
-                del self._adopted[run_id]
-                self._finish(run_id, None)
-        now = time.monotonic()
-        for run_id, deadline in list(self._kill_at.items()):
-            if now > deadline:
-                del self._kill_at[run_id]
-                run = self.registry.find(run_id)
-                if run and run.status == RunStatus.STOPPING:
-                    self._signal(run, signal.SIGKILL)
+    def _poll(self) -> None:
+        for run_id, job_id in list(self._jobs.items()):
+            run = self.registry.find(run_id)
+            job = self.executor.status(job_id, run.out_dir if run else "")
+            if run is None:
+                del self._jobs[run_id]
+            elif job is None or job.state == JobState.ENDED:
+                del self._jobs[run_id]
+                self._finish(run, job)
+            elif job.state == JobState.RUNNING and run.status == RunStatus.QUEUED:
+                self.registry.update(run_id, status=RunStatus.RUNNING, started_at=job.started_at or time.time())
 
-    def _finish(self, run_id: int, code: int | None) -> None:
-        """Status from the run folder's state.json; `code` None: a process we did not start."""
-        self._kill_at.pop(run_id, None)
-        run = self.registry.find(run_id)
-        if run is None:
-            return
+    def _finish(self, run: Run, job: Job | None) -> None:
+        """Status from the run folder's state.json; `job` None: a process no executor knows now."""
+        if job is not None and run.status == RunStatus.QUEUED:  # ended between two polls
+            run = self.registry.update(run.id, started_at=job.started_at or run.created_at)
+        logs = self.executor.logs(run.job_id) if run.job_id else None
+        if logs:  # Ray's log of the job: kept with the run, where a local process writes its output
+            _append(RunFolder(run.out_dir).console_file, logs)
+        code = job.exit_code if job else None
         status, reason = end_status(run, code)
-        self.registry.update(run_id, status=status, reason=reason, exit_code=code, ended_at=time.time(), pid=None)
+        if reason is None and job is not None and job.message and status == RunStatus.FAILED:
+            reason = job.message
+        ended = job.ended_at if job and job.ended_at else time.time()
+        self.registry.update(run.id, status=status, reason=reason, exit_code=code, ended_at=ended, pid=None)
 
     def _fill_slots(self) -> None:
-        active = len(self._procs) + len(self._adopted)
+        active = len(self._jobs)
         for run in self.registry.list(RunStatus.QUEUED):
-            if active >= self.settings.max_concurrent_runs:
+            if run.id in self._jobs:
+                continue
+            if not self.executor.queues and active >= self.settings.max_concurrent_runs:
                 return
             self._start(run)
             active += 1
 
     def _start(self, run: Run) -> None:
-        cfg = run.config
         if not run.out_dir:  # never run a trainer in the server's working directory
             self.registry.update(run.id, status=RunStatus.FAILED, ended_at=time.time())
             return
+        launch = self._launch(run)
+        launch.work_dir.mkdir(parents=True, exist_ok=True)
+        _append(launch.console_file, f"$ {' '.join(launch.argv)}\n")
+        try:
+            job_id = self.executor.submit(launch)
+        except Exception as e:  # the executor's refusal (no such program, Ray unreachable): the run's reason
+            _append(launch.console_file, f"could not start: {e}\n")
+            reason = f"{self.executor.name} executor could not start it: {str(e).strip().splitlines()[0][:300]}"
+            self.registry.update(
+                run.id, status=RunStatus.FAILED, ended_at=time.time(), command=launch.argv, reason=reason
+            )
+            return
+        self._jobs[run.id] = job_id
+        queued = self.executor.queues  # a Ray job stays `queued` until Ray reports it running
+        self.registry.update(
+            run.id,
+            status=RunStatus.QUEUED if queued else RunStatus.RUNNING,
+            pid=None if queued else int(job_id),
+            job_id=job_id,
+            executor=self.executor.name,
+            started_at=None if queued else time.time(),
+            command=launch.argv,
+            attempts=run.attempts + 1,
+        )
+
+    def _launch(self, run: Run) -> Launch:
+        """What the executor starts for `run`: the trainer working in its run folder (MuJoCo's
+        MUJOCO_LOG.TXT and the like land there, not in the server's directory), with the project
+        importable for `python -m mimickit.cli`."""
+        cfg = run.config
         out_dir = Path(run.out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
         argv = train_command(
             self.settings.trainer,
             cfg["arg_file"],
@@ -228,49 +283,34 @@ class RunManager:
             rand_seed=cfg.get("rand_seed"),
             data_dir=self.settings.data_dir,
             model_file=cfg.get("model_file"),
+            extra=cfg.get("args"),
         )
-        # The trainer works in its run folder (MuJoCo's MUJOCO_LOG.TXT and the like land there, not in
-        # the server's directory); the project stays importable for `python -m mimickit.cli`.
         path = os.pathsep.join(p for p in (str(IMPORT_ROOT), os.environ.get("PYTHONPATH", "")) if p)
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": path}
-        spawned = time.time()  # before the trainer can write its state.json: what it writes is newer
-        with open(RunFolder(out_dir).console_file, "ab") as console:
-            console.write(f"$ {' '.join(argv)}\n".encode())
-            console.flush()
-            try:
-                proc = subprocess.Popen(
-                    argv,
-                    stdin=subprocess.DEVNULL,
-                    stdout=console,
-                    stderr=subprocess.STDOUT,
-                    cwd=out_dir,
-                    env=env,
-                    start_new_session=True,  # its own process group: a stop reaches its children too
-                    preexec_fn=functools.partial(_die_with_parent, os.getpid()) if _PRCTL else None,
-                )
-            except OSError as e:
-                console.write(f"could not start: {e}\n".encode())
-                self.registry.update(run.id, status=RunStatus.FAILED, ended_at=time.time(), command=argv)
-                return
-        self._procs[run.id] = proc
-        self.registry.update(
-            run.id,
-            status=RunStatus.RUNNING,
-            pid=proc.pid,
-            started_at=spawned,
-            command=argv,
-            attempts=run.attempts + 1,
+        return Launch(
+            argv=argv,
+            work_dir=out_dir,
+            console_file=RunFolder(out_dir).console_file,
+            env={"PYTHONUNBUFFERED": "1", "PYTHONPATH": path},
+            num_cpus=cfg.get("num_cpus"),
+            num_gpus=cfg.get("num_gpus"),
+            name=f"{run.id}: {run.name}",
         )
 
     # -- start-up ----------------------------------------------------------------------------------
 
     def _recover(self) -> None:
-        """Runs a previous server left running: adopt the live ones, mark the gone ones interrupted."""
+        """Runs a previous server left submitted: re-attach to the jobs still going, end the rest."""
         for run in self.registry.list():
-            if run.status not in ACTIVE:
+            job_id = run.job_id or (str(run.pid) if run.pid else None)
+            if run.status not in ACTIVE and not (run.status == RunStatus.QUEUED and job_id):
                 continue
-            if run.pid and _pid_alive(run.pid) and run.out_dir in _cmdline(run.pid):
-                self._adopted[run.id] = run.pid
+            job = self.executor.status(job_id, run.out_dir) if job_id and run.executor == self.executor.name else None
+            if job is not None and job.state != JobState.ENDED:
+                self._jobs[run.id] = job_id
+            elif job is not None:
+                self._finish(run, job)
+            elif run.status == RunStatus.QUEUED:  # its job is gone before it started: submit it again
+                self.registry.update(run.id, job_id=None)
             elif run.status == RunStatus.STOPPING:
                 self.registry.update(run.id, status=RunStatus.STOPPED, ended_at=time.time(), pid=None)
             else:
@@ -284,11 +324,6 @@ class RunManager:
         if run is None:
             raise RunError(f"no run {run_id}", 404)
         return run
-
-    def _signal(self, run: Run, sig: signal.Signals) -> None:
-        if run.pid:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(run.pid, sig)  # pgid == pid: the child leads its own session
 
 
 def end_status(run: Run, code: int | None) -> tuple[RunStatus, str | None]:
@@ -333,37 +368,6 @@ def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", name).strip("-.")[:40] or "run"
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    # A zombie is gone for our purposes (a child of ours is reaped by poll(), so this is another's).
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split(") ", 1)[1][0] != "Z"
-    except (OSError, IndexError):
-        return True
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
-
-
-# prctl(PR_SET_PDEATHSIG, SIGTERM), resolved before any fork so the child only makes the call.
-_PR_SET_PDEATHSIG = 1
-_PRCTL = None
-if sys.platform.startswith("linux"):
-    _libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-    _PRCTL = _libc.prctl
-
-
-def _die_with_parent(parent_pid: int) -> None:
-    """In the child before exec: SIGTERM me when the manager thread (the server) dies."""
-    _PRCTL(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-    if os.getppid() != parent_pid:  # the server died before the call above took effect
-        os._exit(1)
+def _append(path: Path, text: str) -> None:
+    with open(path, "a", encoding="utf-8", errors="replace") as f:
+        f.write(text)

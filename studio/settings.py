@@ -30,6 +30,10 @@ class Settings:
     max_concurrent_runs: int = 1
     trainer: list[str] = field(default_factory=lambda: list(DEFAULT_TRAINER))
     """The program a run starts, before its `--arg_file ...` arguments (`mimickit train` by default)."""
+    executor: str = "local"
+    """What runs the trainers: `local` (subprocesses of the server) or `ray` (jobs on `ray_address`)."""
+    ray_address: str = "http://127.0.0.1:8265"
+    """The Ray cluster's dashboard address (its Job Submission API), for `executor="ray"`."""
     upload_limit_bytes: int = 64 * 1024 * 1024
     stop_timeout_s: float = 60.0
     """How long a stopped run may take to write its checkpoint before it is killed."""

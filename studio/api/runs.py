@@ -38,6 +38,8 @@ class LaunchRun(StrictBody):
     max_samples: int | None = Field(None, gt=0)
     motion_file: str | None = Field(None, description="a clip (.pkl) or dataset (.yaml) replacing the env config's")
     rand_seed: int | None = Field(None, ge=0, le=MAX_SEED, description="the seed (default: the trainer picks one)")
+    num_cpus: float | None = Field(None, ge=0, le=1024, description="CPUs the run reserves (Ray executor; default 1)")
+    num_gpus: float | None = Field(None, ge=0, le=64, description="GPUs the run reserves (Ray executor; default 0)")
 
 
 class ResumeRun(StrictBody):
@@ -72,22 +74,36 @@ def list_runs(request: Request) -> list[dict[str, Any]]:
     return [run_json(r) for r in studio_of(request).registry.list()]
 
 
+def resolve_motion_file(path: str, settings: Settings) -> Path:
+    """A clip (.pkl) or dataset (.yaml) inside the readable folders, or PathError 400 naming it."""
+    motion = confine(path, settings.readable_roots)
+    if motion.suffix not in MOTION_SUFFIXES or not motion.is_file():
+        raise PathError(f"motion_file must be a clip (.pkl) or a dataset (.yaml) file: {path}", 400)
+    return motion
+
+
+def run_config(body: LaunchRun, settings: Settings) -> dict[str, Any]:
+    """What the registry keeps of a launch: the resolved arg file and clip, the overrides given, and
+    the resources (1 CPU by default with Ray, so that Ray, not the studio, decides how many run at once)."""
+    config: dict[str, Any] = {"arg_file": str(resolve_arg_file(body.arg_file, settings))}
+    if body.motion_file:
+        config["motion_file"] = str(resolve_motion_file(body.motion_file, settings))
+    for key in ("num_envs", "max_samples", "rand_seed", "num_cpus", "num_gpus"):
+        if getattr(body, key) is not None:
+            config[key] = getattr(body, key)
+    if settings.executor == "ray":
+        config.setdefault("num_cpus", 1)
+    return config
+
+
 @router.post("", status_code=201)
 def launch(body: LaunchRun, request: Request) -> dict[str, Any]:
     """Queue a training run (`mimickit train --arg_file ... --out_dir <runs-dir>/<id>-<name>`); it
-    starts when fewer than `--max-concurrent-runs` runs are going."""
+    starts when fewer than `--max-concurrent-runs` runs are going (local executor) or when the Ray
+    cluster has its `num_cpus`/`num_gpus` free (Ray executor)."""
     studio = studio_of(request)
-    arg_file = resolve_arg_file(body.arg_file, studio.settings)
-    config: dict[str, Any] = {"arg_file": str(arg_file)}
-    if body.motion_file:
-        motion = confine(body.motion_file, studio.settings.readable_roots)
-        if motion.suffix not in MOTION_SUFFIXES or not motion.is_file():
-            raise PathError(f"motion_file must be a clip (.pkl) or a dataset (.yaml) file: {body.motion_file}", 400)
-        config["motion_file"] = str(motion)
-    for key in ("num_envs", "max_samples", "rand_seed"):
-        if getattr(body, key) is not None:
-            config[key] = getattr(body, key)
-    name = body.name or f"{arg_file.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    config = run_config(body, studio.settings)
+    name = body.name or f"{Path(config['arg_file']).stem}-{time.strftime('%Y%m%d-%H%M%S')}"
     return run_json(studio.runs.submit(name, config))
 
 
@@ -118,17 +134,20 @@ def again(run_id: int, request: Request) -> dict[str, Any]:
 
 @router.delete("/{run_id}", status_code=204)
 def delete(run_id: int, request: Request) -> Response:
-    """Remove the run and its folder (a running run must be stopped first)."""
-    studio_of(request).runs.delete(run_id)
+    """Remove the run and its folder (a running run must be stopped first); a rollout of one of its
+    checkpoints is stopped and cleared."""
+    studio = studio_of(request)
+    out_dir = studio.runs.get(run_id).out_dir
+    studio.runs.delete(run_id)
+    if out_dir and studio.rollout is not None and studio.rollout.plays_from(Path(out_dir)):
+        studio.end_rollout()
     return Response(status_code=204)
 
 
 @router.get("/{run_id}/log")
 def log_tail(run_id: int, request: Request, lines: int = Query(200, gt=0, le=5000)) -> dict[str, Any]:
-    """The last lines of the run's console output."""
-    run = studio_of(request).runs.get(run_id)
-    path = RunFolder(run.out_dir).console_file
-    text = path.read_text(errors="replace") if path.is_file() else ""
+    """The last lines of the run's console output (a running Ray job's from Ray)."""
+    text = studio_of(request).runs.logs(run_id)
     return {"lines": text.splitlines()[-lines:]}
 
 
