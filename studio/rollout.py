@@ -13,8 +13,10 @@ new episode.
 `RolloutPlayer` runs a `Rollout` in a worker thread at the env's control rate (× speed) and draws it
 in the studio's scene. Its commands mirror the clip player's (play, pause, step, seek, configure), so
 the REST scene commands and the keys drive whichever is loaded: the timeline is the recorded history;
-seeking or stepping back shows a recorded frame (the simulation waits); play goes back to the live
-end and goes on simulating; step at the live end simulates one more step.
+seeking or stepping back shows a recorded frame (the simulation waits); play goes on from the frame
+shown, through the recorded history to the live end, then simulating; step at the live end simulates
+one more step. The state's reward, terms and episode figures are those of the frame shown (`latest`:
+the live end's).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ import torch
 from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, RunFolder
 from mimickit.util.errors import MimicKitError
 from studio.checkpoints import configs_beside, data_dir_for_build
-from studio.scene import StudioScene
+from studio.scene import SUPPORT_WINDOW_S, StudioScene
 
 HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
 RELOAD_POLL_S = 1.0  # how often the checkpoint's mtime is checked
@@ -119,6 +121,7 @@ class Frame:
     terms: dict[str, float] | None
     episode_return: float
     done: int = 0  # DoneFlags of the step that ended an episode (1 fail, 2 success, 3 time)
+    low_z: float | None = None  # lowest body origin of the followed figure (see RolloutPlayer._height)
 
 
 @dataclass
@@ -160,6 +163,9 @@ class Rollout:
         ghost_id = self.env.get_ref_char_id()
         self.ghost_bodies = view.objects[ghost_id].body_ids if ghost_id is not None else np.zeros(0, dtype=np.int64)
         self.ghost_root = int(self.ghost_bodies[0]) if len(self.ghost_bodies) else None
+        # Height follow tracks the reference (it may climb; the policy may fall), else the character.
+        char_bodies = np.asarray(view.objects[self.env.get_char_id()].body_ids)
+        self.follow_bodies = self.ghost_bodies if len(self.ghost_bodies) else char_bodies
         self.reward_weights: dict[str, float] = dict(getattr(self.env, "reward_weights", {}) or {})
         self.history: deque[Frame] = deque(maxlen=max(2, round(history_s / self.dt)))
         st = source.checkpoint.stat()
@@ -251,6 +257,7 @@ class RolloutState:
     follow: bool = True
     view: int | None = None  # index into the history being shown; None: the live end
     updates: int = 0  # scene updates sent
+    height: float = 0.0  # how far the ground is lowered when following (see RolloutPlayer._height)
     root_pos: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
@@ -265,6 +272,7 @@ class RolloutPlayer:
         self._wake = threading.Event()
         self._closed = threading.Event()
         self._listeners: list[Callable[[RolloutPlayer], None]] = []
+        self._ground = np.inf  # the lowest `Frame.low_z` drawn so far (see _height)
         if scene is not None:
             scene.show_rollout(rollout.model, rollout.ghost_bodies)
         with self._lock:
@@ -279,11 +287,10 @@ class RolloutPlayer:
     # -- commands (any thread) ----------------------------------------------------------------------
 
     def play(self) -> None:
+        """Play on from the frame shown: through the recorded history first (at the control rate),
+        then simulating from the live end."""
         with self._lock:
             self.state.playing = True
-            if self.state.view is not None:
-                self.state.view = None  # back to the live end, which goes on from where it was
-                self._draw()
         self._changed()
         self._wake.set()
 
@@ -348,6 +355,10 @@ class RolloutPlayer:
         self._thread.join(timeout=5)
         self.rollout.close()
 
+    def plays_from(self, folder: Path) -> bool:
+        """Whether the checkpoint rolled out lies in `folder` (a run folder about to go)."""
+        return self.rollout.source.checkpoint.resolve().is_relative_to(Path(folder).resolve())
+
     # -- reading ------------------------------------------------------------------------------------
 
     def snapshot(self) -> dict[str, Any]:
@@ -357,7 +368,7 @@ class RolloutPlayer:
             i = self._shown_index()
             shown = r.history[i]
             latest = r.history[-1]
-            last_terms = next((f for f in reversed(r.history) if f.terms is not None), None)
+            live_terms = self._last_with_terms(len(r.history) - 1)  # an episode's first frame has none
             src = r.source
             return {
                 "mode": "rollout",
@@ -383,12 +394,22 @@ class RolloutPlayer:
                     "control_freq": r.control_freq,
                     "step": r.steps,
                     "live": s.view is None,
-                    "episode": latest.episode,
-                    "episode_step": latest.episode_step,
-                    "episode_return": latest.episode_return,
+                    # The frame the scene shows (a history frame while scrubbed back), as the label shows it.
+                    "episode": shown.episode,
+                    "episode_step": shown.episode_step,
+                    "episode_return": shown.episode_return,
+                    "reward": shown.reward,  # None for an episode's first frame
+                    "reward_terms": shown.terms or {},
+                    "latest": {  # the live end, the newest simulated step
+                        "step": latest.step,
+                        "episode": latest.episode,
+                        "episode_step": latest.episode_step,
+                        "episode_return": latest.episode_return,
+                        "reward": live_terms.reward if live_terms else None,
+                        "reward_terms": live_terms.terms if live_terms else {},
+                    },
                     "episodes": [e.to_json() for e in list(r.episodes)[-10:]],
-                    "reward": last_terms.reward if last_terms else None,
-                    "reward_terms": last_terms.terms if last_terms else {},
+                    "follow_height": s.height,
                     "reward_weights": r.reward_weights,
                     "history_seconds": len(r.history) * r.dt,
                     "shown": {
@@ -419,22 +440,59 @@ class RolloutPlayer:
 
     # -- internals ----------------------------------------------------------------------------------
 
+    def _last_with_terms(self, i: int) -> Frame | None:
+        """The frame `i` or, for an episode's first frame (no reward yet), the latest before it."""
+        hist = self.rollout.history
+        for j in range(i, -1, -1):
+            if hist[j].terms is not None:
+                return hist[j]
+        return None
+
     def _shown_index(self) -> int:
         n = len(self.rollout.history)
         return n - 1 if self.state.view is None else min(self.state.view, n - 1)
 
     def _draw(self) -> None:
         r = self.rollout
-        frame = r.history[self._shown_index()]
+        i = self._shown_index()
+        frame = r.history[i]
         xpos, xmat = r.pose(frame)
+        frame.low_z = float(xpos[r.follow_bodies, 2].min())
+        self.state.height = self._height(i)
         root = xpos[r.root_body]
         # Following keeps the pair in view: the point halfway between the character and its ghost.
         centre = root if r.ghost_root is None else 0.5 * (root + xpos[r.ghost_root])
         if self.scene is not None:
-            self.scene.draw_bodies(xpos, xmat, centre, self.state.follow)
+            self.scene.draw_bodies(xpos, xmat, centre, self.state.follow, self.state.height)
         self.state.root_pos = root.astype(float).tolist()
         self.state.updates += 1
         self._changed()
+
+    def _advance(self) -> None:
+        """One frame on: the next recorded one while history is shown, else one simulated step."""
+        if self.state.view is None:
+            self.rollout.step()
+            return
+        self.state.view += 1
+        if self.state.view >= len(self.rollout.history) - 1:
+            self.state.view = None
+
+    def _height(self, i: int) -> float:
+        """How far the followed figure stands above the lowest level it has stood on: the lowest of
+        its bodies over the last `SUPPORT_WINDOW_S` of the episode (a lifted foot or a jump do not
+        count), above the lowest seen in the whole rollout (the ground)."""
+        r, hist = self.rollout, self.rollout.history
+        episode = hist[i].episode
+        lows = []
+        for j in range(i, max(-1, i - round(SUPPORT_WINDOW_S / r.dt) - 1), -1):
+            f = hist[j]
+            if f.episode != episode:
+                break
+            if f.low_z is None:
+                f.low_z = float(r.pose(f)[0][r.follow_bodies, 2].min())
+            lows.append(f.low_z)
+        self._ground = min(self._ground, *lows)
+        return max(0.0, min(lows) - self._ground)
 
     def _changed(self) -> None:
         for fn in self._listeners:
@@ -476,8 +534,7 @@ class RolloutPlayer:
             try:
                 with self._lock:
                     if self.state.playing:
-                        self.rollout.step()
-                        self.state.view = None
+                        self._advance()
                         self._draw()
             except Exception as e:  # noqa: BLE001 - a simulation error pauses the rollout, reported in state
                 with self._lock:

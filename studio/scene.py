@@ -5,7 +5,10 @@ character in its side colours and the reference character (the env's visual-only
 translucent green figure.
 
 Camera follow moves the world, not the camera: the character's root is kept over the origin (in x, y)
-and the ground, path and markers shift under it, so each browser keeps its own orbit/zoom.
+and the ground, path and markers shift under it, so each browser keeps its own orbit/zoom. Height is
+followed too, by the level the character stands on (`support_height`): a clip that climbs (or a
+rollout whose reference climbs) stays in view, while a walk, a squat or a jump leaves the ground where
+it is (the feet never sink through it).
 """
 
 from __future__ import annotations
@@ -43,6 +46,20 @@ CLIP_CAMERA = {"position": (2.2, -2.6, 1.5), "look_at": (0.0, 0.0, 0.8)}
 PATH_COLOR = (250, 176, 5)
 CONTACT_COLOR = (60, 220, 120)
 MAX_PATH_POINTS = 400
+SUPPORT_WINDOW_S = 0.5  # the standing level is the lowest foot within this many seconds either side
+
+
+def support_height(low_z: np.ndarray, fps: float, window_s: float = SUPPORT_WINDOW_S) -> np.ndarray:
+    """The level [T] to keep in view, from the lowest point of the feet per frame [T]: the minimum
+    over a window of +-`window_s` (a lifted foot, a jump do not count), then averaged over the same
+    window (a step up is a ramp, not a jump). Never above the feet: each averaged minimum is at most
+    the frame's own lowest point."""
+    w = max(1, round(window_s * fps))
+    n = len(low_z)
+    padded = np.pad(np.asarray(low_z, dtype=np.float64), w, mode="edge")
+    lows = np.lib.stride_tricks.sliding_window_view(padded, 2 * w + 1).min(axis=1)
+    lows = np.pad(lows, w, mode="edge")
+    return np.lib.stride_tricks.sliding_window_view(lows, 2 * w + 1).mean(axis=1)[:n]
 
 
 def body_color(name: str) -> tuple[float, float, float]:
@@ -88,6 +105,7 @@ class StudioScene:
         self._body_map: np.ndarray = np.zeros(0, dtype=np.int64)  # char body j -> MuJoCo body id
         self._nbody = 0  # bodies of the clip character's MuJoCo model (world included)
         self._contacts: list[viser.CylinderHandle] = []
+        self._support: tuple[ClipPose | None, np.ndarray] = (None, np.zeros(0))
         self.mode = "clip"  # "clip": the player draws; "rollout": a rollout draws (clip draws are ignored)
         self._ghost: list[tuple[int, viser.MeshHandle]] = []  # (MuJoCo body id, its translucent mesh)
         server.scene.set_up_direction("+z")
@@ -162,6 +180,7 @@ class StudioScene:
             offset = np.zeros(3)
             if follow:
                 offset[:2] = pose.root_pos[frame, :2]
+                offset[2] = self._clip_support(pose)[frame]
             xpos = np.zeros((1, self._nbody, 3))
             xmat = np.tile(np.eye(3), (1, self._nbody, 1, 1))
             xpos[0, self._body_map] = pose.body_pos[frame] - offset
@@ -173,13 +192,20 @@ class StudioScene:
                     h.visible = bool(in_contact[i])
                     if in_contact[i]:
                         j = pose.char.get_body_id(pose.feet[i])
-                        h.position = (*pose.body_pos[frame, j, :2], 0.003)
+                        h.position = (*pose.body_pos[frame, j, :2], 0.003 + offset[2])
                 self._mj.update_from_arrays(xpos, xmat)
             # mjviser flushes inside the atomic block, where viser's sender may not take the messages;
             # a flush after it wakes the sender when it can (without it, 60 Hz playback reached a
             # client at ~10 poses/s here, 45 Hz at the full rate).
             self.server.flush()
             return offset
+
+    def _clip_support(self, pose: ClipPose) -> np.ndarray:
+        """`support_height` of the clip's feet (of its root when it has no feet), once per clip."""
+        if self._support[0] is not pose:
+            low = pose.foot_low_z.min(axis=1) if pose.foot_low_z.shape[1] else pose.root_pos[:, 2] - pose.root_pos[0, 2]
+            self._support = (pose, support_height(low, pose.fps))
+        return self._support[1]
 
     # -- rollout: an env's own model, character and ghost ------------------------------------------
 
@@ -225,15 +251,18 @@ class StudioScene:
                     client.camera.position = view["position"]
                     client.camera.look_at = view["look_at"]
 
-    def draw_bodies(self, xpos: np.ndarray, xmat: np.ndarray, root: np.ndarray, follow: bool) -> np.ndarray:
+    def draw_bodies(
+        self, xpos: np.ndarray, xmat: np.ndarray, root: np.ndarray, follow: bool, height: float = 0.0
+    ) -> np.ndarray:
         """Pose every body of the rollout model from MuJoCo's xpos [nbody, 3] / xmat [nbody, 9];
-        `root` [3] is kept over the origin when following."""
+        `root` [3] is kept over the origin when following, and the ground `height` lowered to 0."""
         with self._lock:
             if self._mj is None or self.mode != "rollout":
                 return np.zeros(3)
             offset = np.zeros(3)
             if follow:
                 offset[:2] = root[:2]
+                offset[2] = height
             pos = xpos - offset
             mats = xmat.reshape(-1, 3, 3)
             with self.server.atomic():

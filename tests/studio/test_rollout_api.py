@@ -5,11 +5,12 @@ with the scene commands, read its state and reward-term history; refuse checkpoi
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
 
-from tests.studio.conftest import ENV_YAML, StudioProcess, wait_for, write_arg_file
+from tests.studio.conftest import ENV_YAML, StudioProcess, wait_for, write_arg_file, write_checkpoint_dir
 
 pytestmark = pytest.mark.integration
 
@@ -135,5 +136,59 @@ def test_shipped_demo_model_rolls_out_with_its_arg_file(studio: StudioProcess) -
         s = wait_for(lambda: (st := state(studio))["rollout"]["step"] >= 200 and st, 40, "200 policy steps")["rollout"]
         longest = max([e["steps"] for e in s["episodes"]] + [s["episode_step"]])
         assert longest >= 60, f"an untrained policy falls after ~30 steps; this one's episodes: {s['episodes']}"
+    finally:
+        studio.post("/api/scene/rollout/close")
+
+
+def test_the_state_describes_the_frame_shown_and_play_goes_on_from_it(
+    studio: StudioProcess, demo_checkpoint: Path
+) -> None:
+    assert studio.post("/api/scene/load_rollout", {"checkpoint": str(demo_checkpoint)}).status_code == 200
+    try:
+        wait_for(lambda: state(studio)["rollout"]["step"] >= 40, 20, "40 rollout steps")
+        studio.post("/api/scene/pause")
+        back = studio.post("/api/scene/seek", {"frame": 5}).json()
+        info = back["rollout"]
+        assert not info["live"] and info["latest"]["step"] > info["shown"]["step"]
+        for key in ("episode", "episode_step", "episode_return", "reward"):
+            assert info[key] == info["shown"][key], key  # the label's values are the shown frame's
+        assert info["reward_terms"] == info["shown"]["reward_terms"]
+        latest = info["latest"]["step"]
+        played = studio.post("/api/scene/play").json()
+        assert played["playing"] and not played["rollout"]["live"] and played["frame"] < played["num_frames"] - 1
+        moved = wait_for(lambda: (st := state(studio))["frame"] > 8 and st, 10, "history to play on")
+        assert moved["rollout"]["latest"]["step"] == latest or moved["rollout"]["live"]  # no jump to the end
+        wait_for(lambda: state(studio)["rollout"]["latest"]["step"] > latest, 20, "the live end to go on")
+    finally:
+        studio.post("/api/scene/rollout/close")
+
+
+def test_deleting_a_run_stops_its_rollout(studio: StudioProcess) -> None:
+    write_arg_file(studio.runs_dir, "to_delete", rows=2, period=0.05)
+    run = studio.post("/api/runs", {"arg_file": str(studio.runs_dir / "args" / "to_delete.txt")}).json()
+    wait_for(lambda: studio.get(f"/api/runs/{run['id']}").json()["status"] == "finished", what="the fake run")
+    write_checkpoint_dir(Path(run["out_dir"]))  # a real checkpoint and its configs in the run's folder
+    r = studio.post("/api/scene/load_rollout", {"run_id": run["id"]})
+    assert r.status_code == 200, r.text
+    assert studio.client.delete(f"/api/runs/{run['id']}").status_code == 204
+    s = state(studio)
+    assert s["mode"] == "clip" and "rollout" not in s
+    assert studio.get("/api/scene/rollout/history").status_code == 409
+
+
+def test_follow_keeps_a_climbing_reference_in_view(
+    studio: StudioProcess, demo_checkpoint: Path, test_data: Path
+) -> None:
+    """A rollout whose reference climbs (the ghost rises ~2 m): following lowers the ground under it."""
+    climb = ENV_YAML.read_text().replace(
+        'motion_file: "data/motions/humanoid_demo_squat.pkl"',
+        'motion_file: "data/motions/humanoid/parc/humanoid_climb00.pkl"',
+    )
+    ckpt = write_checkpoint_dir(studio.runs_dir / "ckpt-climb", climb, save_model=False)
+    shutil.copyfile(demo_checkpoint, ckpt)  # same character and observations: the demo's weights fit
+    assert studio.post("/api/scene/load_rollout", {"checkpoint": str(ckpt)}).status_code == 200
+    try:
+        high = wait_for(lambda: (st := state(studio))["rollout"]["follow_height"] > 0.5 and st, 40, "a raised view")
+        assert high["follow"]
     finally:
         studio.post("/api/scene/rollout/close")
