@@ -26,6 +26,7 @@ from mimickit.anim.motion import load_motion
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_WEB_DIR
 from studio.api import checkpoints as checkpoints_api
+from studio.api import evals as evals_api
 from studio.api import library as library_api
 from studio.api import runs as runs_api
 from studio.api import scene as scene_api
@@ -174,7 +175,7 @@ def create_app(settings: Settings) -> FastAPI:
     hosts = HostPolicy(settings.host, settings.allowed_hosts)
     app.add_middleware(RequestGuard, hosts=hosts, token=settings.token if settings.needs_token else None)
 
-    for module in (library_api, scene_api, runs_api, checkpoints_api, stream_api):
+    for module in (library_api, scene_api, runs_api, checkpoints_api, stream_api, evals_api):
         app.include_router(module.router, prefix="/api")
     _add_error_handlers(app)
     close_proxy = add_scene_proxy(app, lambda: studio.viser_port)
