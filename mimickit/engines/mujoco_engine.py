@@ -41,9 +41,8 @@ from __future__ import annotations
 import math
 import os
 import queue
-from collections.abc import Iterator
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING
@@ -592,13 +591,7 @@ class MujocoEngine(Engine):
         target = self._pd_target if mode == ControlMode.pd_explicit else self._ctrl
         target[:, lay.act_ids] = values
 
-    def step(self) -> None:
-        with self.stepping():
-            pass
-
-    @contextmanager
-    def stepping(self) -> Iterator[None]:
-        """The block runs on the calling thread while the workers run the first pass of substeps."""
+    def step(self, concurrent: Callable[[], None] | None = None) -> None:
         self._push_edits()
         nsub = self._config.substeps
         if nsub > 1:
@@ -608,30 +601,26 @@ class MujocoEngine(Engine):
             flags = opt.disableflags
             opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_SENSOR
             try:
-                with self._workers_running(nsub - 1, first=True, last=False):
-                    yield
+                self._run_workers(nsub - 1, first=True, last=False, concurrent=concurrent)
             finally:
                 opt.disableflags = flags
-            with self._workers_running(1, first=False, last=True):
-                pass
-        else:
-            with self._workers_running(1, first=True, last=True):
-                yield
+            concurrent = None
+        self._run_workers(1, first=nsub == 1, last=True, concurrent=concurrent)
         # Gather and refresh once here rather than per chunk in the workers: measured as fast or faster
         # (numpy ops in a worker hold the GIL that the other workers need between mj_step calls).
         self._gather(slice(None))
         self._refresh(slice(None))
         self._sim_time += self.get_timestep()
 
-    @contextmanager
-    def _workers_running(self, nstep: int, first: bool, last: bool) -> Iterator[None]:
+    def _run_workers(self, nstep: int, first: bool, last: bool, concurrent: Callable[[], None] | None = None) -> None:
         """Advance every env `nstep` substeps. The threads take chunks from one queue (see GUIDED_SPLIT);
-        the calling thread runs the block first and then takes chunks too, so the envs it would have
-        stepped go to whichever thread is free."""
+        with `concurrent`, the calling thread runs it first and then takes chunks too, so the envs it would
+        have stepped go to whichever thread is free."""
         pd = self._config.control_mode == ControlMode.pd_explicit
         worker = partial(self._step_chunk_pd_explicit if pd else self._step_chunk, nstep=nstep, first=first, last=last)
         if self._pool is None:  # one thread, or closed
-            yield
+            if concurrent is not None:
+                concurrent()
             worker(slice(None))
             return
         todo: queue.SimpleQueue[slice] = queue.SimpleQueue()
@@ -648,7 +637,8 @@ class MujocoEngine(Engine):
 
         futures = [self._pool.submit(drain) for _ in range(self._nthread - 1)]
         try:
-            yield
+            if concurrent is not None:
+                concurrent()
         finally:
             drain()
             for f in futures:

@@ -39,8 +39,7 @@ the one counterpart, fed by the solver's CONTACT_F observable after the last sub
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING
 
@@ -497,12 +496,7 @@ class NewtonEngine(Engine):
     def _obj_kin(self, obj_id: int) -> KinCharModel:
         return self._layouts[obj_id].kin
 
-    def step(self) -> None:
-        with self.stepping():
-            pass
-
-    @contextmanager
-    def stepping(self) -> Iterator[None]:
+    def step(self, concurrent: Callable[[], None] | None = None) -> None:
         self._sync()
         dt = self.get_sim_timestep()
         nsub = self._config.substeps
@@ -517,7 +511,8 @@ class NewtonEngine(Engine):
             self.solver.step(self.state, self.state, self.control, self.contacts, dt, observables=obs)
         if self.sensor is not None:
             self.sensor.update(self.state, self.contacts, observables=self.observables)
-        yield  # on a GPU the kernels above are queued, not yet run: the block overlaps them
+        if concurrent is not None:  # on a GPU the kernels above are queued, not yet run: this overlaps them
+            concurrent()
         self._refresh(contacts=True)
         self._sim_time += self.get_timestep()
 
