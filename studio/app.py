@@ -26,6 +26,7 @@ from mimickit.anim.motion import load_motion
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_WEB_DIR
 from studio.api import checkpoints as checkpoints_api
+from studio.api import compare as compare_api
 from studio.api import evals as evals_api
 from studio.api import library as library_api
 from studio.api import runs as runs_api
@@ -34,10 +35,9 @@ from studio.api import stream as stream_api
 from studio.clip_pose import pose_clip
 from studio.library import Library
 from studio.player import Player
-from studio.player_gui import PlayerGui
+from studio.player_gui import SceneKeys
 from studio.registry import Registry
 from studio.rollout import Rollout, RolloutPlayer, RolloutSource
-from studio.rollout_gui import RolloutGui
 from studio.runs import RunError, RunManager
 from studio.scene import StudioScene
 from studio.scene_proxy import VISER_HOST, add_scene_proxy
@@ -61,7 +61,6 @@ class Studio:
     scene: StudioScene | None = None
     player: Player | None = None
     rollout: RolloutPlayer | None = None
-    rollout_gui: RolloutGui | None = None
     _scene_lock: threading.RLock = field(default_factory=threading.RLock)
 
     @property
@@ -85,8 +84,6 @@ class Studio:
             if self.player:
                 self.player.pause()
             self.rollout = RolloutPlayer(rollout, self.scene, play=play)
-            if self.rollout_gui:
-                self.rollout_gui.attach(self.rollout)
             return self.rollout
 
     def end_rollout(self) -> None:
@@ -95,8 +92,6 @@ class Studio:
             rp, self.rollout = self.rollout, None
             if rp is None:
                 return
-            if self.rollout_gui:
-                self.rollout_gui.detach()
             rp.close()
             if self.scene:
                 self.scene.end_rollout()
@@ -128,8 +123,7 @@ def create_studio(settings: Settings) -> Studio:
             )
         studio.scene = StudioScene(studio.viser_server)
         studio.player = Player(studio.scene)
-        player_gui = PlayerGui(studio.viser_server, studio.player, active=studio.active)
-        studio.rollout_gui = RolloutGui(studio.viser_server, [player_gui.folder, player_gui.readout_folder])
+        SceneKeys(studio.viser_server, active=studio.active)  # the page is the one control surface
         if settings.startup_clip is not None:
             _play_startup_clip(studio)
     # Reading every clip once takes a second or two with a large data folder: do it before anyone asks.
@@ -175,7 +169,7 @@ def create_app(settings: Settings) -> FastAPI:
     hosts = HostPolicy(settings.host, settings.allowed_hosts)
     app.add_middleware(RequestGuard, hosts=hosts, token=settings.token if settings.needs_token else None)
 
-    for module in (library_api, scene_api, runs_api, checkpoints_api, stream_api, evals_api):
+    for module in (library_api, scene_api, runs_api, checkpoints_api, compare_api, stream_api, evals_api):
         app.include_router(module.router, prefix="/api")
     _add_error_handlers(app)
     close_proxy = add_scene_proxy(app, lambda: studio.viser_port)
