@@ -26,6 +26,7 @@ from mimickit.envs.base_env import BaseEnv
 from mimickit.learning import disc_util
 from mimickit.learning.agent_config import ADDAgentConfig
 from mimickit.learning.amp_agent import AMPAgent
+from mimickit.learning.amp_model import AMPModel
 from mimickit.learning.normalizer import DiffNormalizer
 from mimickit.learning.ppo_agent import PPOAgent
 from mimickit.util.errors import MimicKitError
@@ -62,7 +63,7 @@ class ADDAgent(AMPAgent):
         self._exp_buffer.record("disc_obs", info["disc_obs"])
         self._exp_buffer.record("disc_obs_demo", info["disc_obs_demo"])
         if self._need_normalizer_update():
-            self._disc_obs_norm.record(info["disc_obs_demo"] - info["disc_obs"])
+            self._disc_obs_norm.record(disc_input(info["disc_obs"], info["disc_obs_demo"]))
 
     def _build_train_data(self) -> dict[str, float]:
         # No demo fetch (AMP's first step): the env already paired every row with its reference.
@@ -72,35 +73,50 @@ class ADDAgent(AMPAgent):
 
     def _disc_input_flat(self) -> torch.Tensor:
         buf = self._exp_buffer
-        return buf.get_data_flat("disc_obs_demo") - buf.get_data_flat("disc_obs")
+        return disc_input(buf.get_data_flat("disc_obs"), buf.get_data_flat("disc_obs_demo"))
 
     # ---------------------------------------------------------------- updates
 
     def _compute_disc_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """BCE of the zero difference (positive) against the batch's and as many replayed differences
-        (negatives), plus the penalties; `disc_loss` is what the optimiser minimises."""
-        cfg = self.config
-        diff = batch["disc_obs_demo"] - batch["disc_obs"]
+        """ADD's discriminator loss on a minibatch's differences and as many replayed ones."""
+        diff = disc_input(batch["disc_obs"], batch["disc_obs_demo"])
         replay = self._disc_buffer.sample(diff.shape[0])["disc_obs"]
-        norm_neg = self._disc_obs_norm.normalize(torch.cat([diff, replay])).requires_grad_(True)
-        # Zero normalised is zero: the positive goes in as is.
-        pos = torch.zeros(1, diff.shape[-1], device=diff.device, requires_grad=True)
-        neg_logit = self._model.eval_disc(norm_neg)
-        pos_logit = self._model.eval_disc(pos)
-
-        bce = disc_util.disc_bce_loss(neg_logit, pos_logit)
-        logit_loss = disc_util.disc_logit_reg(self._model.get_disc_logit_weights())
-        grad_penalty = 0.5 * (
-            disc_util.disc_grad_penalty(neg_logit, norm_neg) + disc_util.disc_grad_penalty(pos_logit, pos)
+        cfg = self.config
+        return compute_disc_loss(
+            self._model, self._disc_obs_norm, torch.cat([diff, replay]), cfg.disc_logit_reg, cfg.disc_grad_penalty
         )
-        loss = bce + cfg.disc_logit_reg * logit_loss + cfg.disc_grad_penalty * grad_penalty
-        neg_acc, pos_acc = disc_util.disc_accuracy(neg_logit.detach(), pos_logit.detach())
-        return {
-            "disc_loss": loss,
-            "disc_grad_penalty": grad_penalty.detach(),
-            "disc_logit_loss": logit_loss.detach(),
-            "disc_pos_acc": pos_acc,
-            "disc_neg_acc": neg_acc,
-            "disc_pos_logit": pos_logit.detach().mean(),
-            "disc_neg_logit": neg_logit.detach().mean(),
-        }
+
+
+# -------------------------------------------------------------------- the agent's math, on the tensors it needs
+
+
+def disc_input(disc_obs: torch.Tensor, disc_obs_demo: torch.Tensor) -> torch.Tensor:
+    """What ADD's discriminator judges: Δ = reference − agent, before normalisation."""
+    return disc_obs_demo - disc_obs
+
+
+def compute_disc_loss(
+    model: AMPModel, disc_obs_norm: DiffNormalizer, diffs: torch.Tensor, logit_reg: float, grad_penalty: float
+) -> dict[str, torch.Tensor]:
+    """BCE of the zero difference (positive) against `diffs` [B, D] (unnormalised rollout and replayed
+    differences, the negatives), plus the penalties; `disc_loss` is what the optimiser minimises."""
+    norm_neg = disc_obs_norm.normalize(diffs).requires_grad_(True)
+    # Zero normalised is zero: the positive goes in as is.
+    pos = torch.zeros(1, diffs.shape[-1], device=diffs.device, requires_grad=True)
+    neg_logit = model.eval_disc(norm_neg)
+    pos_logit = model.eval_disc(pos)
+
+    bce = disc_util.disc_bce_loss(neg_logit, pos_logit)
+    logit_loss = disc_util.disc_logit_reg(model.get_disc_logit_weights())
+    penalty = 0.5 * (disc_util.disc_grad_penalty(neg_logit, norm_neg) + disc_util.disc_grad_penalty(pos_logit, pos))
+    loss = bce + logit_reg * logit_loss + grad_penalty * penalty
+    neg_acc, pos_acc = disc_util.disc_accuracy(neg_logit.detach(), pos_logit.detach())
+    return {
+        "disc_loss": loss,
+        "disc_grad_penalty": penalty.detach(),
+        "disc_logit_loss": logit_loss.detach(),
+        "disc_pos_acc": pos_acc,
+        "disc_neg_acc": neg_acc,
+        "disc_pos_logit": pos_logit.detach().mean(),
+        "disc_neg_logit": neg_logit.detach().mean(),
+    }

@@ -118,30 +118,23 @@ class AMPAgent(PPOAgent):
         return self._exp_buffer.get_data_flat("disc_obs")
 
     def _store_disc_replay_data(self) -> None:
-        disc_obs = self._disc_input_flat()
-        n = disc_obs.shape[0]
-        buf = self._disc_buffer
-        full = buf.get_total_samples() >= buf.capacity
-        num = min(n, self.config.disc_replay_samples) if full else n
-        idx = torch.randperm(n, device=self._device)[:num]
-        buf.push({"disc_obs": disc_obs[idx].unsqueeze(1)})
+        store_disc_replay(self._disc_buffer, self._disc_input_flat(), self.config.disc_replay_samples)
 
     def _compute_rewards(self) -> dict[str, float]:
         """Replace the stored env reward [T, N] by the weighted task + discriminator reward."""
         buf, cfg = self._exp_buffer, self.config
         task_r = buf.get_data("reward")
         disc_r = self._calc_disc_rewards(self._disc_input_flat()).view_as(task_r)
-        std, mean = torch.std_mean(disc_r)
-        buf.set_data("reward", cfg.task_reward_weight * task_r + cfg.disc_reward_weight * disc_r)
-        return {"disc_reward_mean": mean.item(), "disc_reward_std": std.item()}
+        reward, info = style_rewards(task_r, disc_r, cfg.task_reward_weight, cfg.disc_reward_weight)
+        buf.set_data("reward", reward)
+        return info
 
-    @torch.no_grad()
     def _calc_disc_rewards(self, disc_obs: torch.Tensor) -> torch.Tensor:
         """Unweighted discriminator reward [B] of unnormalised disc inputs [B, disc_obs_dim] (ADD: differences)."""
-        norm = self._disc_obs_norm.normalize(disc_obs)
-        chunk = self.config.disc_eval_batch_size or max(norm.shape[0], 1)
-        logits = torch.cat([self._model.eval_disc(x) for x in norm.split(chunk)])
-        return disc_util.disc_reward(logits, self.config.disc_reward_scale)
+        cfg = self.config
+        return calc_disc_rewards(
+            self._model, self._disc_obs_norm, disc_obs, cfg.disc_reward_scale, cfg.disc_eval_batch_size
+        )
 
     # ---------------------------------------------------------------- updates
 
@@ -154,30 +147,90 @@ class AMPAgent(PPOAgent):
         return info
 
     def _compute_disc_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """BCE + penalties on a minibatch; gradients are taken w.r.t. the normalised inputs."""
-        cfg = self.config
+        """AMP's discriminator loss on a minibatch and as many replayed agent samples."""
         agent_obs = batch["disc_obs"]
         replay = self._disc_buffer.sample(agent_obs.shape[0])["disc_obs"]
-        norm_agent = self._disc_obs_norm.normalize(torch.cat([agent_obs, replay])).requires_grad_(True)
-        norm_demo = self._disc_obs_norm.normalize(batch["disc_obs_demo"]).requires_grad_(True)
-        agent_logit = self._model.eval_disc(norm_agent)
-        demo_logit = self._model.eval_disc(norm_demo)
-
-        loss = disc_util.disc_bce_loss(agent_logit, demo_logit)
-        grad_penalty = 0.5 * (
-            disc_util.disc_grad_penalty(demo_logit, norm_demo) + disc_util.disc_grad_penalty(agent_logit, norm_agent)
+        cfg = self.config
+        return compute_disc_loss(
+            self._model,
+            self._disc_obs_norm,
+            torch.cat([agent_obs, replay]),
+            batch["disc_obs_demo"],
+            cfg.disc_logit_reg,
+            cfg.disc_grad_penalty,
         )
-        loss = loss + cfg.disc_grad_penalty * grad_penalty
-        agent_acc, demo_acc = disc_util.disc_accuracy(agent_logit.detach(), demo_logit.detach())
-        info = {
-            "disc_grad_penalty": grad_penalty.detach(),
-            "disc_agent_acc": agent_acc,
-            "disc_demo_acc": demo_acc,
-            "disc_agent_logit": agent_logit.detach().mean(),
-            "disc_demo_logit": demo_logit.detach().mean(),
-        }
-        if cfg.disc_logit_reg != 0:
-            logit_loss = disc_util.disc_logit_reg(self._model.get_disc_logit_weights())
-            loss = loss + cfg.disc_logit_reg * logit_loss
-            info["disc_logit_loss"] = logit_loss.detach()
-        return {"disc_loss": loss, **info}
+
+
+# -------------------------------------------------------------------- the agent's math, on the tensors it needs
+
+
+def store_disc_replay(buffer: ExperienceBuffer, disc_input: torch.Tensor, replay_samples: int) -> None:
+    """Push a rollout's discriminator inputs [B, D] into the replay ring (batch 1): all of them until
+    it is full, then a random `replay_samples` subset."""
+    n = disc_input.shape[0]
+    full = buffer.get_total_samples() >= buffer.capacity
+    num = min(n, replay_samples) if full else n
+    idx = torch.randperm(n, device=disc_input.device)[:num]
+    buffer.push({"disc_obs": disc_input[idx].unsqueeze(1)})
+
+
+def style_rewards(
+    task_reward: torch.Tensor, disc_reward: torch.Tensor, task_weight: float, disc_weight: float
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """The training reward task_weight · r_task + disc_weight · r_disc (same shape), and the disc
+    reward's `disc_reward_mean` / `disc_reward_std` for the metrics."""
+    std, mean = torch.std_mean(disc_reward)
+    reward = task_weight * task_reward + disc_weight * disc_reward
+    return reward, {"disc_reward_mean": mean.item(), "disc_reward_std": std.item()}
+
+
+@torch.no_grad()
+def calc_disc_rewards(
+    model: AMPModel,
+    disc_obs_norm: Normalizer | DiffNormalizer,
+    disc_input: torch.Tensor,
+    reward_scale: float,
+    eval_batch_size: int = 0,
+) -> torch.Tensor:
+    """Unweighted discriminator reward [B] of unnormalised disc inputs [B, D], in chunks of
+    `eval_batch_size` rows (all at once when it is 0)."""
+    norm = disc_obs_norm.normalize(disc_input)
+    chunk = eval_batch_size or max(norm.shape[0], 1)
+    logits = torch.cat([model.eval_disc(x) for x in norm.split(chunk)])
+    return disc_util.disc_reward(logits, reward_scale)
+
+
+def compute_disc_loss(
+    model: AMPModel,
+    disc_obs_norm: Normalizer,
+    agent_obs: torch.Tensor,
+    demo_obs: torch.Tensor,
+    logit_reg: float,
+    grad_penalty: float,
+) -> dict[str, torch.Tensor]:
+    """BCE (agent 0, demo 1) + grad_penalty · gradient penalty + logit_reg · logit regulariser on
+    unnormalised agent (rollout and replayed) and demo disc obs; gradients are taken w.r.t. the
+    normalised inputs. `disc_loss` is what the optimiser minimises; the rest is logged."""
+    norm_agent = disc_obs_norm.normalize(agent_obs).requires_grad_(True)
+    norm_demo = disc_obs_norm.normalize(demo_obs).requires_grad_(True)
+    agent_logit = model.eval_disc(norm_agent)
+    demo_logit = model.eval_disc(norm_demo)
+
+    loss = disc_util.disc_bce_loss(agent_logit, demo_logit)
+    penalty = 0.5 * (
+        disc_util.disc_grad_penalty(demo_logit, norm_demo) + disc_util.disc_grad_penalty(agent_logit, norm_agent)
+    )
+    loss = loss + grad_penalty * penalty
+    agent_acc, demo_acc = disc_util.disc_accuracy(agent_logit.detach(), demo_logit.detach())
+    info = {
+        "disc_grad_penalty": penalty.detach(),
+        "disc_agent_acc": agent_acc,
+        "disc_demo_acc": demo_acc,
+        "disc_agent_logit": agent_logit.detach().mean(),
+        "disc_demo_logit": demo_logit.detach().mean(),
+    }
+    if logit_reg != 0:
+        logit_loss = disc_util.disc_logit_reg(model.get_disc_logit_weights())
+        loss = loss + logit_reg * logit_loss
+        info["disc_logit_loss"] = logit_loss.detach()
+    return {"disc_loss": loss, **info}

@@ -32,6 +32,7 @@ from mimickit.learning.amp_agent import AMPAgent
 from mimickit.learning.ase_model import ASEModel
 from mimickit.learning.distributions import GaussianDiag
 from mimickit.learning.mp_optimizer import MPOptimizer
+from mimickit.learning.normalizer import Normalizer
 from mimickit.util.errors import MimicKitError
 
 
@@ -57,8 +58,9 @@ class ASEAgent(AMPAgent):
         super().__init__(config, env, device)
         self._latent_env: LatentEnv = env
         n = env.get_num_envs()
-        self._latents = torch.zeros(n, config.model.latent_dim, device=self._device)
-        self._latent_reset_time = torch.zeros(n, device=self._device)
+        self._schedule = ase_util.LatentSchedule(
+            n, config.model.latent_dim, config.latent_time_min, config.latent_time_max, self._device
+        )
         self._resample_latents(torch.arange(n, device=self._device))
         env.set_enc_reward_fn(self._enc_reward_for_envs, config.enc_reward_weight)
 
@@ -79,31 +81,20 @@ class ASEAgent(AMPAgent):
 
     def get_latents(self) -> torch.Tensor:
         """The envs' current latents [N, latent_dim] (unit length)."""
-        return self._latents
+        return self._schedule.latents
 
     def _resample_latents(self, env_ids: torch.Tensor) -> None:
-        """New latents for env_ids, kept until env time + U[latent_time_min, latent_time_max] s."""
-        n = len(env_ids)
-        if n == 0:
-            return
-        cfg = self.config
-        self._latents[env_ids] = ase_util.sample_latents(n, cfg.model.latent_dim, self._device)
-        hold = torch.empty(n, device=self._device).uniform_(cfg.latent_time_min, cfg.latent_time_max)
-        self._latent_reset_time[env_ids] = self._env_time(env_ids) + hold
+        self._schedule.resample(env_ids, self._env_time(env_ids))
 
     def _env_time(self, env_ids: torch.Tensor) -> torch.Tensor:
         return self._latent_env.get_env_time(env_ids).to(self._device)
 
-    def _update_latent_schedule(self) -> None:
-        """Resample the latents whose hold time has run out."""
-        due = self._env_time(torch.arange(self.get_num_envs(), device=self._device)) >= self._latent_reset_time
-        self._resample_latents(due.nonzero().flatten())
-
     def _latents_for(self, obs: torch.Tensor) -> torch.Tensor:
         """The envs' latents for a batch of their observations; fresh ones for a batch of another size
         (callers of `compute_action` that step their own set of states)."""
-        if obs.shape[0] == self._latents.shape[0]:
-            return self._latents
+        latents = self._schedule.latents
+        if obs.shape[0] == latents.shape[0]:
+            return latents
         return ase_util.sample_latents(obs.shape[0], self.config.model.latent_dim, obs.device)
 
     def _reset_envs(self, env_ids: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, Any]]:
@@ -117,13 +108,13 @@ class ASEAgent(AMPAgent):
     ) -> tuple[torch.Tensor, dict[str, Any]]:
         out = super()._reset_done_envs(obs, info, done)  # done envs' time is 0 again
         self._resample_latents((done != DoneFlags.NULL).nonzero().flatten().to(self._device))
-        self._update_latent_schedule()
+        self._schedule.resample_due(self._env_time(torch.arange(self.get_num_envs(), device=self._device)))
         return out
 
     # ---------------------------------------------------------------- acting and recording
 
     def _actor_critic_input(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        return torch.cat([self._obs_norm.normalize(obs), z], dim=-1)
+        return actor_critic_input(self._obs_norm, obs, z)
 
     def _eval_policy(self, obs: torch.Tensor) -> GaussianDiag:
         return self._model.eval_actor(self._actor_critic_input(obs, self._latents_for(obs)))
@@ -132,7 +123,7 @@ class ASEAgent(AMPAgent):
         self, obs: torch.Tensor, info: dict[str, Any], action: torch.Tensor, action_info: dict[str, torch.Tensor]
     ) -> None:
         super()._record_data_pre_step(obs, info, action, action_info)
-        self._exp_buffer.record("latent", self._latents)
+        self._exp_buffer.record("latent", self._schedule.latents)
 
     def _eval_critic_batched(self, obs: torch.Tensor) -> torch.Tensor:
         """V([obs, z]) for the rollout's obs or next_obs [T, N, obs_dim] with each row's latent."""
@@ -157,17 +148,13 @@ class ASEAgent(AMPAgent):
         std, mean = torch.std_mean(enc_r)
         return {**info, "enc_reward_mean": mean.item(), "enc_reward_std": std.item()}
 
-    @torch.no_grad()
     def _calc_enc_rewards(self, disc_obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        """Unweighted encoder reward [B] of unnormalised disc obs [B, disc_obs_dim] and latents [B, dim]."""
-        norm = self._disc_obs_norm.normalize(disc_obs)
-        chunk = self.config.enc_eval_batch_size or max(norm.shape[0], 1)
-        pred = torch.cat([self._model.eval_enc(x) for x in norm.split(chunk)])
-        return ase_util.enc_reward(z, pred)
+        return calc_enc_rewards(self._model, self._disc_obs_norm, disc_obs, z, self.config.enc_eval_batch_size)
 
     def _enc_reward_for_envs(self, disc_obs: torch.Tensor, env_ids: torch.Tensor | None) -> torch.Tensor:
         """The env's per-step `enc` term: its disc obs scored against the latents the envs act on."""
-        z = self._latents if env_ids is None else self._latents[env_ids.to(self._device)]
+        latents = self._schedule.latents
+        z = latents if env_ids is None else latents[env_ids.to(self._device)]
         return self._calc_enc_rewards(disc_obs.to(self._device), z)
 
     # ---------------------------------------------------------------- updates
@@ -181,8 +168,7 @@ class ASEAgent(AMPAgent):
         return info
 
     def _compute_enc_loss(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        pred = self._model.eval_enc(self._disc_obs_norm.normalize(batch["disc_obs"]))
-        return {"enc_loss": ase_util.enc_loss(batch["latent"], pred)}
+        return {"enc_loss": compute_enc_loss(self._model, self._disc_obs_norm, batch["disc_obs"], batch["latent"])}
 
     def _net_input(self, batch: dict[str, torch.Tensor], rows: torch.Tensor | None = None) -> torch.Tensor:
         if rows is None:
@@ -194,16 +180,47 @@ class ASEAgent(AMPAgent):
         diversity loss, both on the minibatch's exploring rows only (as the reference)."""
         info = super()._compute_actor_loss(batch)  # None when no row explored
         if info is not None and self.config.diversity_weight != 0:
-            rows = rl_util.exploring_rows(batch)
-            div = self._compute_diversity_loss(
-                rl_util.select_rows(batch["obs"], rows), rl_util.select_rows(batch["latent"], rows)
-            )
+            div = compute_diversity_loss(self._model, self._obs_norm, batch, self.config.diversity_tar)
             info["actor_loss"] = info["actor_loss"] + self.config.diversity_weight * div
             info["diversity_loss"] = div.detach()
         return info
 
-    def _compute_diversity_loss(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        new_z = ase_util.sample_latents(z.shape[0], z.shape[-1], z.device)
-        mean_z = self._model.eval_actor(self._actor_critic_input(obs, z)).mode
-        mean_new_z = self._model.eval_actor(self._actor_critic_input(obs, new_z)).mode
-        return ase_util.diversity_loss(mean_z, mean_new_z, z, new_z, self.config.diversity_tar)
+
+# -------------------------------------------------------------------- the agent's math, on the tensors it needs
+
+
+def actor_critic_input(obs_norm: Normalizer, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+    """What ASE's actor and critic read: [normalised obs, z]."""
+    return torch.cat([obs_norm.normalize(obs), z], dim=-1)
+
+
+@torch.no_grad()
+def calc_enc_rewards(
+    model: ASEModel, disc_obs_norm: Normalizer, disc_obs: torch.Tensor, z: torch.Tensor, eval_batch_size: int = 0
+) -> torch.Tensor:
+    """Unweighted encoder reward [B] of unnormalised disc obs [B, disc_obs_dim] and latents [B, dim],
+    in chunks of `eval_batch_size` rows (all at once when it is 0)."""
+    norm = disc_obs_norm.normalize(disc_obs)
+    chunk = eval_batch_size or max(norm.shape[0], 1)
+    pred = torch.cat([model.eval_enc(x) for x in norm.split(chunk)])
+    return ase_util.enc_reward(z, pred)
+
+
+def compute_enc_loss(
+    model: ASEModel, disc_obs_norm: Normalizer, disc_obs: torch.Tensor, z: torch.Tensor
+) -> torch.Tensor:
+    """The encoder's loss mean(−z·ẑ) on unnormalised disc obs [B, disc_obs_dim] and their latents [B, dim]."""
+    return ase_util.enc_loss(z, model.eval_enc(disc_obs_norm.normalize(disc_obs)))
+
+
+def compute_diversity_loss(
+    model: ASEModel, obs_norm: Normalizer, batch: dict[str, torch.Tensor], target: float
+) -> torch.Tensor:
+    """The diversity loss of an actor minibatch's exploring rows (those PPO's surrogate learns from),
+    with new latents z′ drawn for them: `ase_util.diversity_loss` of the actor's means under z and z′."""
+    rows = rl_util.exploring_rows(batch)
+    obs, z = rl_util.select_rows(batch["obs"], rows), rl_util.select_rows(batch["latent"], rows)
+    new_z = ase_util.sample_latents(z.shape[0], z.shape[-1], z.device)
+    mean_z = model.eval_actor(actor_critic_input(obs_norm, obs, z)).mode
+    mean_new_z = model.eval_actor(actor_critic_input(obs_norm, obs, new_z)).mode
+    return ase_util.diversity_loss(mean_z, mean_new_z, z, new_z, target)

@@ -33,3 +33,37 @@ def diversity_loss(
     delta_a = (mean_new_z - mean_z).square().mean(-1)
     delta_z = 0.5 - 0.5 * (new_z * z).sum(-1)
     return (target - delta_a / (delta_z + DIVERSITY_EPS)).square().mean()
+
+
+class LatentSchedule:
+    """Each env's latent z [N, dim] (unit length) and the env time at which it is due for a new one:
+    a latent drawn at env time t is kept until t + U[time_min, time_max] s."""
+
+    def __init__(self, num_envs: int, dim: int, time_min: float, time_max: float, device: torch.device) -> None:
+        self._time_min, self._time_max = time_min, time_max
+        self._device = device
+        self._latents = torch.zeros(num_envs, dim, device=device)
+        self._reset_time = torch.zeros(num_envs, device=device)
+
+    @property
+    def latents(self) -> torch.Tensor:
+        return self._latents
+
+    @property
+    def reset_time(self) -> torch.Tensor:
+        """The env time [N] at which each env's latent is resampled."""
+        return self._reset_time
+
+    def resample(self, env_ids: torch.Tensor, env_time: torch.Tensor) -> None:
+        """New latents for env_ids, whose env times are env_time [len(env_ids)]."""
+        n = len(env_ids)
+        if n == 0:
+            return
+        self._latents[env_ids] = sample_latents(n, self._latents.shape[-1], self._device)
+        hold = torch.empty(n, device=self._device).uniform_(self._time_min, self._time_max)
+        self._reset_time[env_ids] = env_time + hold
+
+    def resample_due(self, env_time: torch.Tensor) -> None:
+        """Resample the latents whose hold time has run out at every env's time env_time [N]."""
+        ids = (env_time >= self._reset_time).nonzero().flatten()
+        self.resample(ids, env_time[ids])

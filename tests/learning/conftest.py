@@ -7,6 +7,8 @@ from typing import Any
 import pytest
 import torch
 
+from mimickit.learning.base_agent import AgentMode
+
 
 def ppo_config_dict(**overrides: Any) -> dict[str, Any]:
     cfg: dict[str, Any] = {
@@ -54,3 +56,12 @@ def _seed_and_threads():
     torch.set_num_threads(1)  # tiny nets: threads only add overhead on the shared 2-core machine
     yield
     torch.set_num_threads(threads)
+
+
+def first_step_info(env: Any, agent: Any, seed: int = 5) -> dict[str, Any]:
+    """The info of one deterministic (test-mode) step from a reset drawn with `seed`: two agents with the
+    same weights on envs of one config give the same one."""
+    agent.set_mode(AgentMode.TEST)
+    torch.manual_seed(seed)
+    obs, _ = env.reset()
+    return env.step(agent.compute_action(obs))[3]

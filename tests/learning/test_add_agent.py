@@ -16,14 +16,17 @@ import torch.nn.functional as F
 from mimickit.envs.add_env import ADDEnv
 from mimickit.envs.base_env import BoxSpace
 from mimickit.envs.env_config import load_env_configs
-from mimickit.learning.add_agent import ADDAgent
+from mimickit.learning.add_agent import ADDAgent, compute_disc_loss, disc_input
 from mimickit.learning.agent_builder import build_agent_from_config
 from mimickit.learning.agent_config import ADDAgentConfig, load_agent_config
+from mimickit.learning.amp_agent import calc_disc_rewards, style_rewards
+from mimickit.learning.amp_model import AMPModel
 from mimickit.learning.base_agent import TRAIN_STATE_KEY
+from mimickit.learning.mp_optimizer import MPOptimizer
 from mimickit.learning.normalizer import DiffNormalizer
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
-from tests.learning.conftest import ppo_config_dict
+from tests.learning.conftest import first_step_info, ppo_config_dict
 from tests.learning.toy_env import TargetReachEnv
 
 ENGINE = PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
@@ -33,13 +36,15 @@ DEMO_CLIP = PROJECT_DATA_DIR / "motions/humanoid_demo_squat.pkl"
 
 
 class DiffToyEnv(TargetReachEnv):
-    """The toy env with ADD's interface: the agent's disc obs is the point, the reference's the target."""
+    """The toy env with ADD's interface: the agent's disc obs is the point, the reference's the target.
+    It keeps each step's difference target − point (`diffs`), as the agent sees it right after the step."""
 
     def __init__(self, num_envs: int = 4) -> None:
         super().__init__(num_envs)
         self._info["disc_obs"] = self._pos
         self._info["disc_obs_demo"] = self._target
         self.disc_fn: Callable[[torch.Tensor], torch.Tensor] | None = None
+        self.diffs: list[torch.Tensor] = []
 
     def get_disc_obs_space(self) -> BoxSpace:
         return BoxSpace.unbounded(2)
@@ -53,6 +58,11 @@ class DiffToyEnv(TargetReachEnv):
     def set_disc_reward_fn(self, fn: Callable[[torch.Tensor], torch.Tensor] | None, task_weight: float = 1.0,
                            disc_weight: float = 1.0) -> None:  # fmt: skip
         self.disc_fn = fn
+
+    def step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+        out = super().step(action)
+        self.diffs.append((self._target - self._pos).clone())
+        return out
 
 
 def add_config(**overrides) -> ADDAgentConfig:
@@ -69,20 +79,32 @@ def add_config(**overrides) -> ADDAgentConfig:
 
 # The discriminator set by hand: hidden 1 = x + C (C keeps every ReLU on its linear side), hidden 2 =
 # 2·hidden 1, logit = A·hidden 2 + B, so D(x) = 2A·x + 2A·C + B = (1, -0.5)·x − 2 and ∇D = 2A everywhere.
+# The normaliser's mean |Δ| is (2, 4).
 A, C, B = torch.tensor([0.5, -0.25]), 10.0, -7.0
+MEAN_ABS = torch.tensor([2.0, 4.0])
 
 
-def hand_set_disc(agent: ADDAgent) -> None:
-    layers, logits = agent._model._disc_layers, agent._model._disc_logits
-    with torch.no_grad():
-        for p in [*layers.parameters(), *logits.parameters()]:
-            p.zero_()
-        layers[0].weight[:2, :2] = torch.eye(2)
-        layers[0].bias[:2] = C
-        layers[2].weight[:2, :2] = 2.0 * torch.eye(2)
-        logits.weight[0, :2] = A
-        logits.bias.fill_(B)
-        agent._disc_obs_norm._mean_abs.copy_(torch.tensor([2.0, 4.0]))
+def hand_set_disc(module: torch.nn.Module) -> None:
+    """Set the discriminator and normaliser above through the checkpoint keys (an agent's, or those of
+    `disc_parts`), so the numbers below are the ones a saved model would hold."""
+    state = {k: v.clone() for k, v in module.state_dict().items()}
+    for k, v in state.items():
+        if k.startswith("_model._disc"):
+            v.zero_()
+    state["_model._disc_layers.0.weight"][:2, :2] = torch.eye(2)
+    state["_model._disc_layers.0.bias"][:2] = C
+    state["_model._disc_layers.2.weight"][:2, :2] = 2.0 * torch.eye(2)
+    state["_model._disc_logits.weight"][0, :2] = A
+    state["_model._disc_logits.bias"].fill_(B)
+    state["_disc_obs_norm._mean_abs"] = MEAN_ABS.clone()
+    module.load_state_dict(state)
+
+
+def disc_parts() -> tuple[AMPModel, DiffNormalizer]:
+    """ADD's networks (for the toy env's sizes) and normaliser, set by hand, without an agent."""
+    model, norm = AMPModel(add_config().model, 6, 2, 2), DiffNormalizer((2,))
+    hand_set_disc(torch.nn.ModuleDict({"_model": model, "_disc_obs_norm": norm}))
+    return model, norm
 
 
 def toy_agent(**overrides) -> tuple[DiffToyEnv, ADDAgent]:
@@ -97,44 +119,59 @@ def softplus(x: float) -> float:
     return math.log1p(math.exp(x))
 
 
+def hand_disc_reward(diff: torch.Tensor) -> torch.Tensor:
+    """r = −log(1 − sigmoid(D)) · 2 = 2 · softplus(D) of the hand-set D on normalised differences [B, 2]."""
+    logit = (diff / MEAN_ABS) @ torch.tensor([1.0, -0.5]) - 2.0
+    return 2.0 * F.softplus(logit)
+
+
 # ------------------------------------------------------------------ by hand on the toy env
 
 
 def test_disc_input_is_the_normalised_difference_reference_minus_agent():
-    env, agent = toy_agent()
-    assert isinstance(agent._disc_obs_norm, DiffNormalizer)
-    agent._exp_buffer.set_data("disc_obs", torch.tensor([[[1.0, 1.0]], [[0.0, 0.0]]]).repeat(4, 4, 1))
-    agent._exp_buffer.set_data("disc_obs_demo", torch.tensor([[[3.0, 5.0]], [[2.0, -4.0]]]).repeat(4, 4, 1))
-    diff = agent._disc_input_flat()
-    assert diff.shape == (32, 2) and torch.equal(diff[:4], torch.tensor([[2.0, 4.0]]).expand(4, 2))
+    diff = disc_input(torch.tensor([[1.0, 1.0], [0.0, 0.0]]), torch.tensor([[3.0, 5.0], [2.0, -4.0]]))
+    assert torch.equal(diff, torch.tensor([[2.0, 4.0], [2.0, -4.0]]))
     # Normalised by mean |diff| = (2, 4): (1, 1) → D = 1 − 0.5 − 2 = −1.5; r = softplus(−1.5) · 2.
-    rewards = agent._calc_disc_rewards(diff[:1])
-    assert rewards.item() == pytest.approx(2 * softplus(-1.5), rel=1e-5)
-    assert env.disc_fn is not None and env.disc_fn(diff[:1]).item() == pytest.approx(rewards.item())
+    model, norm = disc_parts()
+    rewards = calc_disc_rewards(model, norm, diff, 2.0)
+    assert rewards[0].item() == pytest.approx(2 * softplus(-1.5), rel=1e-5)
+    assert rewards[1].item() == pytest.approx(2 * softplus(1 + 0.5 - 2), rel=1e-5)  # normalised (1, −1)
+    # In chunks of one row, the same; and the agent hands the env this very reward of its discriminator.
+    torch.testing.assert_close(calc_disc_rewards(model, norm, diff, 2.0, eval_batch_size=1), rewards)
+    env, _ = toy_agent()
+    assert env.disc_fn is not None
+    torch.testing.assert_close(env.disc_fn(diff), rewards)
 
 
 def test_rewards_are_the_weighted_task_and_disc_rewards():
-    _, agent = toy_agent(task_reward_weight=0.5, disc_reward_weight=3.0)
-    agent._exp_buffer.set_data("disc_obs", torch.zeros(8, 4, 2))
-    agent._exp_buffer.set_data("disc_obs_demo", torch.tensor([2.0, -4.0]).expand(8, 4, 2).clone())
-    task_r = torch.rand(8, 4)
-    agent._exp_buffer.set_data("reward", task_r)
-    info = agent._compute_rewards()
-    disc_r = 2 * softplus(1 + 0.5 - 2)  # normalised (1, −1)
-    torch.testing.assert_close(agent._exp_buffer.get_data("reward"), 0.5 * task_r + 3.0 * disc_r)
-    assert info["disc_reward_mean"] == pytest.approx(disc_r, rel=1e-5) and info["disc_reward_std"] < 1e-5
+    task_r, disc_r = torch.rand(8, 4), torch.full((8, 4), 0.75)
+    reward, info = style_rewards(task_r, disc_r, 0.5, 3.0)
+    torch.testing.assert_close(reward, 0.5 * task_r + 3.0 * 0.75)
+    assert info == {"disc_reward_mean": pytest.approx(0.75), "disc_reward_std": pytest.approx(0.0, abs=1e-6)}
+
+
+def test_an_iteration_normalises_and_rewards_the_differences_of_its_rollout():
+    """The rollout's rewards come from the pre-update discriminator and normaliser on target − point
+    right after each step; then the normaliser takes the rollout's mean |Δ| (its count was 0)."""
+    env, agent = toy_agent(task_reward_weight=0.5, disc_reward_weight=3.0)
+    agent.start_training()
+    step = agent.train_iteration()
+    assert step is not None and len(env.diffs) == 8
+    diffs = torch.cat(env.diffs)
+    expected = hand_disc_reward(diffs)
+    assert step.info["disc_reward_mean"] == pytest.approx(expected.mean().item(), rel=1e-5)
+    assert step.info["disc_reward_std"] == pytest.approx(expected.std().item(), rel=1e-4)
+    state = agent.state_dict()
+    torch.testing.assert_close(state["_disc_obs_norm._mean_abs"], diffs.abs().mean(0))
+    assert state["_disc_obs_norm._count"].item() == 32
 
 
 def test_each_loss_term_by_hand():
-    _, agent = toy_agent()
-    agent._disc_buffer.push({"disc_obs": torch.tensor([4.0, 0.0]).expand(50, 1, 2)})  # normalised (2, 0): D = 0
-    batch = {
-        "disc_obs": torch.tensor([[1.0, 1.0], [0.0, 0.0]]),
-        "disc_obs_demo": torch.tensor([[3.0, 5.0], [2.0, -4.0]]),
-    }
-    info = agent._compute_disc_loss(batch)
+    model, norm = disc_parts()
     # Negatives: the batch's differences (2, 4), (2, −4) → normalised (1, 1), (1, −1) → D = −1.5, −0.5; two
-    # replayed → D = 0, 0. Positive: the zero difference → D = −2.
+    # replayed (4, 0) → normalised (2, 0) → D = 0, 0. Positive: the zero difference → D = −2.
+    diffs = torch.tensor([[2.0, 4.0], [2.0, -4.0], [4.0, 0.0], [4.0, 0.0]])
+    info = compute_disc_loss(model, norm, diffs, logit_reg=0.01, grad_penalty=2.0)
     neg = [-1.5, -0.5, 0.0, 0.0]
     bce = 0.5 * (softplus(2.0) + sum(softplus(x) for x in neg) / 4)  # BCE(l, 1) = softplus(−l), BCE(l, 0) = softplus(l)
     logit_reg = 0.5**2 + 0.25**2  # Σ w² of the logit layer
@@ -150,10 +187,8 @@ def test_each_loss_term_by_hand():
         + F.binary_cross_entropy_with_logits(torch.tensor(neg), torch.zeros(4))
     )
     assert torch_bce.item() == pytest.approx(bce, rel=1e-6)
-    # The logit regulariser is always added, whatever its weight.
-    _, no_reg = toy_agent(disc_logit_reg=0.0)
-    no_reg._disc_buffer.push({"disc_obs": torch.tensor([4.0, 0.0]).expand(50, 1, 2)})
-    info = no_reg._compute_disc_loss(batch)
+    # The logit regulariser is always logged, whatever its weight.
+    info = compute_disc_loss(model, norm, diffs, logit_reg=0.0, grad_penalty=2.0)
     assert info["disc_loss"].item() == pytest.approx(bce + 2.0 * grad_penalty, rel=1e-6)
     assert info["disc_logit_loss"].item() == pytest.approx(logit_reg)
 
@@ -162,35 +197,31 @@ def test_the_gradient_penalty_is_optimised():
     """GP = 4‖A‖² with the hand-set net, so raising its weight by 1 adds exactly 8A to ∂loss/∂A."""
     grads = []
     for weight in (2.0, 3.0):
-        _, agent = toy_agent(disc_grad_penalty=weight)
-        agent._disc_buffer.push({"disc_obs": torch.zeros(10, 1, 2)})
-        agent._compute_disc_loss({"disc_obs": torch.zeros(3, 2), "disc_obs_demo": torch.ones(3, 2)})[
-            "disc_loss"
-        ].backward()
-        grads.append(agent._model._disc_logits.weight.grad[0, :2].clone())
+        model, norm = disc_parts()
+        diffs = torch.cat([torch.ones(3, 2), torch.zeros(3, 2)])  # the batch's, then the replayed
+        compute_disc_loss(model, norm, diffs, logit_reg=0.01, grad_penalty=weight)["disc_loss"].backward()
+        grads.append(dict(model.named_parameters())["_disc_logits.weight"].grad[0, :2].clone())
     torch.testing.assert_close(grads[1] - grads[0], 8 * A)
 
 
-def test_disc_weight_decay_goes_through_the_disc_optimizer():
-    _, agent = toy_agent()
-    params = list(agent._model.get_disc_params())
+def test_disc_weight_decay_goes_through_the_disc_optimizer(tmp_path):
+    cfg = add_config()
+    model, _ = disc_parts()
+    params = list(model.get_disc_params())
     before = [p.detach().clone() for p in params]
-    actor_before = [p.detach().clone() for p in agent._model.get_actor_params()]
-    agent._disc_optimizer.step(sum(0.0 * p.sum() for p in params))  # zero loss gradient: only the decay acts
+    actor_before = [p.detach().clone() for p in model.get_actor_params()]
+    MPOptimizer(cfg.disc_optimizer, params).step(sum(0.0 * p.sum() for p in params))  # zero gradient: only decay
     for p, b in zip(params, before, strict=True):  # SGD: p ← p − lr·(∇ + wd·p)
         torch.testing.assert_close(p.detach(), b * (1 - 2.5e-4 * 1e-4), rtol=0, atol=1e-12)
-    assert all(torch.equal(p, b) for p, b in zip(agent._model.get_actor_params(), actor_before, strict=True))
+    assert all(torch.equal(p, b) for p, b in zip(model.get_actor_params(), actor_before, strict=True))
     assert any((b != 0).any() for b in before), "the decay was observable"
-
-
-def test_post_step_records_both_sides_and_the_normaliser_the_differences():
-    env, agent = toy_agent()
-    obs, info = env.reset()
-    agent._record_data_post_step(obs, torch.zeros(4), torch.zeros(4, dtype=torch.long), info)
-    torch.testing.assert_close(agent._exp_buffer.get_data("disc_obs")[0], env._pos)
-    torch.testing.assert_close(agent._exp_buffer.get_data("disc_obs_demo")[0], env._target)
-    agent._disc_obs_norm.update()
-    torch.testing.assert_close(agent._disc_obs_norm.get_mean_abs(), (env._target - env._pos).abs().mean(0))
+    # The agent's disc optimiser is that one: the discriminator's parameters, with the decay (its checkpoint).
+    _, agent = toy_agent()
+    agent.save(tmp_path / "model.pt")
+    (group,) = torch.load(tmp_path / "model.pt", weights_only=True)[TRAIN_STATE_KEY]["optimizers"]["disc"]["optimizer"][
+        "param_groups"
+    ]
+    assert (group["lr"], group["weight_decay"], len(group["params"])) == (2.5e-4, 1e-4, len(params))
 
 
 def test_add_needs_the_reference_disc_obs():
@@ -240,9 +271,9 @@ def test_training_on_the_humanoid_logs_disc_metrics_and_saves_the_reference_keys
         assert row["reward_terms.task"] == 0.0 and row["train_return"] == 0.0
         assert 0.0 <= row["disc_pos_acc"] <= 1.0 and 0.0 <= row["disc_neg_acc"] <= 1.0
         assert row["tracking.body_pos_err"] > 0 and row["disc_logit_loss"] > 0
-    # The normaliser's mean |Δ| is the rollouts' (all three recorded; first update from a count of 0).
-    assert agent._disc_obs_norm.get_count() == 3 * 32
     state = torch.load(tmp_path / "model.pt", weights_only=True)
+    # The normaliser's mean |Δ| is the rollouts' (all three recorded; first update from a count of 0).
+    assert state["_disc_obs_norm._count"].item() == 3 * 32
     assert {k for k in state if "disc" in k} == {
         "_disc_obs_norm._count", "_disc_obs_norm._mean_abs",
         "_model._disc_layers.0.weight", "_model._disc_layers.0.bias",
@@ -252,10 +283,10 @@ def test_training_on_the_humanoid_logs_disc_metrics_and_saves_the_reference_keys
     assert state["_model._disc_layers.0.weight"].shape == (128, 172)
     assert set(state[TRAIN_STATE_KEY]["optimizers"]) == {"actor", "critic", "disc"}
 
+    # Loaded, the agent scores a step as the one that saved it (the env's style reward is its disc's).
     fresh_env, fresh = make_humanoid_agent()
     fresh.load(tmp_path / "model.pt")
-    torch.testing.assert_close(fresh._disc_obs_norm.get_mean_abs(), agent._disc_obs_norm.get_mean_abs())
-    obs, _ = fresh_env.reset()
-    _, _, _, info = fresh_env.step(fresh.compute_action(obs))
-    diff = info["disc_obs_demo"] - info["disc_obs"]
-    torch.testing.assert_close(info["reward_terms"]["disc"], agent._calc_disc_rewards(diff))
+    torch.testing.assert_close(fresh.state_dict()["_disc_obs_norm._mean_abs"], state["_disc_obs_norm._mean_abs"])
+    reward = first_step_info(fresh_env, fresh)["reward_terms"]["disc"]
+    torch.testing.assert_close(reward, first_step_info(env, agent)["reward_terms"]["disc"])
+    assert bool((reward > 0).all())

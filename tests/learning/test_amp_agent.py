@@ -15,11 +15,14 @@ from mimickit.envs.env_builder import build_env
 from mimickit.learning import disc_util
 from mimickit.learning.agent_builder import build_agent_from_config
 from mimickit.learning.agent_config import AMPAgentConfig, load_agent_config
-from mimickit.learning.amp_agent import AMPAgent
+from mimickit.learning.amp_agent import AMPAgent, calc_disc_rewards, compute_disc_loss, store_disc_replay, style_rewards
+from mimickit.learning.amp_model import AMPModel
 from mimickit.learning.base_agent import TRAIN_STATE_KEY
+from mimickit.learning.experience_buffer import ExperienceBuffer
+from mimickit.learning.normalizer import Normalizer
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
-from tests.learning.conftest import ppo_config_dict
+from tests.learning.conftest import first_step_info, ppo_config_dict
 from tests.learning.toy_env import TargetReachEnv
 
 ENGINE = PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
@@ -96,50 +99,56 @@ def test_shipped_amp_agent_yaml_has_the_reference_values():
     assert (cfg.task_reward_weight, cfg.disc_reward_weight) == (0.0, 1.0)
 
 
+def disc_parts(disc_obs_size: int = 1420) -> tuple[AMPModel, Normalizer]:
+    """AMP's networks and a disc obs normaliser with non-trivial statistics, without an agent or env."""
+    model, norm = AMPModel(amp_config().model, 6, 2, disc_obs_size), Normalizer((disc_obs_size,), clip=10.0)
+    norm.record(3.0 * torch.randn(64, disc_obs_size) + 1.0)
+    norm.update()
+    return model, norm
+
+
 def test_replay_buffer_takes_everything_until_full_then_a_subset():
-    _, agent = make_agent()
-    agent._exp_buffer.set_data("disc_obs", torch.randn(8, 4, 1420))  # 32 samples per iteration
+    buffer = ExperienceBuffer(amp_config().disc_buffer_size, 1, "cpu")
     totals = []
     for _ in range(6):
-        agent._store_disc_replay_data()
-        totals.append(agent._disc_buffer.get_total_samples())
+        store_disc_replay(buffer, torch.randn(32, 1420), replay_samples=5)  # 32 samples per iteration
+        totals.append(buffer.get_total_samples())
     # Capacity 100: 32, 64, 96, then 96 < 100 so all 32 again (wrapping), then 5 per iteration.
     assert totals == [32, 64, 96, 128, 133, 138]
 
 
-def test_rewards_are_the_weighted_task_and_disc_rewards_of_the_pre_update_disc():
-    _, agent = make_agent(task_reward_weight=0.5, disc_reward_weight=2.0)
-    disc_obs, task_r = torch.randn(8, 4, 1420), torch.rand(8, 4)
-    agent._exp_buffer.set_data("disc_obs", disc_obs)
-    agent._exp_buffer.set_data("reward", task_r)
-    info = agent._compute_rewards()
+def test_rewards_are_the_weighted_task_and_disc_rewards():
+    model, norm = disc_parts()
+    disc_obs, task_r = torch.randn(32, 1420), torch.rand(8, 4)
+    disc_r = calc_disc_rewards(model, norm, disc_obs, reward_scale=2.0).view(8, 4)
     with torch.no_grad():
-        logits = agent._model.eval_disc(agent._disc_obs_norm.normalize(disc_obs.view(32, -1))).view(8, 4)
-    disc_r = -torch.log(torch.clamp_min(1.0 - torch.sigmoid(logits), 1e-4)) * 2.0
-    torch.testing.assert_close(agent._exp_buffer.get_data("reward"), 0.5 * task_r + 2.0 * disc_r)
-    assert info["disc_reward_mean"] == pytest.approx(disc_r.mean().item(), rel=1e-5)
+        logits = model.eval_disc(norm.normalize(disc_obs)).view(8, 4)
+    expected = -torch.log(torch.clamp_min(1.0 - torch.sigmoid(logits), 1e-4)) * 2.0
+    torch.testing.assert_close(disc_r, expected)
+    torch.testing.assert_close(calc_disc_rewards(model, norm, disc_obs, 2.0, eval_batch_size=5).view(8, 4), disc_r)
+    reward, info = style_rewards(task_r, disc_r, task_weight=0.5, disc_weight=2.0)
+    torch.testing.assert_close(reward, 0.5 * task_r + 2.0 * expected)
+    assert info["disc_reward_mean"] == pytest.approx(expected.mean().item(), rel=1e-5)
+    assert info["disc_reward_std"] == pytest.approx(expected.std().item(), rel=1e-5)
 
 
 def test_disc_loss_is_bce_plus_weighted_penalties():
-    _, agent = make_agent()
-    agent._disc_buffer.push({"disc_obs": torch.randn(1, 1, 1420).expand(50, 1, 1420)})  # any draw is the same
-    batch = {"disc_obs": torch.randn(6, 1420), "disc_obs_demo": torch.randn(6, 1420)}
-    info = agent._compute_disc_loss(batch)
-    replay = agent._disc_buffer.sample(6)["disc_obs"]
-    norm = agent._disc_obs_norm.normalize
-    agent_x = norm(torch.cat([batch["disc_obs"], replay])).requires_grad_(True)
-    demo_x = norm(batch["disc_obs_demo"]).requires_grad_(True)
-    agent_logit, demo_logit = agent._model.eval_disc(agent_x), agent._model.eval_disc(demo_x)
-    assert agent_logit.shape == (12,)  # the agent term covers the batch and as many replayed samples
+    model, norm = disc_parts()
+    agent_obs, demo_obs = torch.randn(12, 1420), torch.randn(6, 1420)  # a batch of 6 and as many replayed
+    info = compute_disc_loss(model, norm, agent_obs, demo_obs, logit_reg=0.01, grad_penalty=5.0)
+    agent_x = norm.normalize(agent_obs).requires_grad_(True)
+    demo_x = norm.normalize(demo_obs).requires_grad_(True)
+    agent_logit, demo_logit = model.eval_disc(agent_x), model.eval_disc(demo_x)
     gp = 0.5 * (disc_util.disc_grad_penalty(demo_logit, demo_x) + disc_util.disc_grad_penalty(agent_logit, agent_x))
-    reg = agent._model._disc_logits.weight.square().sum()
+    reg = dict(model.named_parameters())["_disc_logits.weight"].square().sum()
     expected = disc_util.disc_bce_loss(agent_logit, demo_logit) + 5.0 * gp + 0.01 * reg
     assert info["disc_loss"].item() == pytest.approx(expected.item(), rel=1e-5)
     assert info["disc_grad_penalty"].item() == pytest.approx(gp.item(), rel=1e-5)
     assert info["disc_logit_loss"].item() == pytest.approx(reg.item(), rel=1e-5)
-    _, no_reg = make_agent(disc_logit_reg=0.0)
-    no_reg._disc_buffer.push({"disc_obs": replay.unsqueeze(1)})
-    assert "disc_logit_loss" not in no_reg._compute_disc_loss(batch)
+    assert info["disc_agent_logit"].item() == pytest.approx(agent_logit.mean().item(), rel=1e-5)
+    no_reg = compute_disc_loss(model, norm, agent_obs, demo_obs, logit_reg=0.0, grad_penalty=5.0)
+    assert "disc_logit_loss" not in no_reg
+    assert no_reg["disc_loss"].item() == pytest.approx(expected.item() - 0.01 * reg.item(), rel=1e-5)
 
 
 @pytest.mark.slow
@@ -164,11 +173,12 @@ def test_training_separates_agent_from_demo_and_logs_the_style_reward(tmp_path):
     assert set(state[TRAIN_STATE_KEY]["optimizers"]) == {"actor", "critic", "disc"}
     assert state["_disc_obs_norm._count"].item() == 2 * 4 * 32, "agent and demo disc obs of 4 iterations"
 
+    # Loaded, the agent scores a step as the one that saved it (the env's style reward is its disc's).
     fresh_env, fresh = make_agent()
     fresh.load(tmp_path / "model.pt")
-    obs, _ = fresh_env.reset()
-    _, _, _, info = fresh_env.step(fresh.compute_action(obs))
-    torch.testing.assert_close(info["reward_terms"]["disc"], agent._calc_disc_rewards(info["disc_obs"]))
+    reward = first_step_info(fresh_env, fresh)["reward_terms"]["disc"]
+    torch.testing.assert_close(reward, first_step_info(env, agent)["reward_terms"]["disc"])
+    assert bool((reward > 0).all())
 
 
 def test_amp_on_an_env_without_disc_obs_is_one_clear_error():
