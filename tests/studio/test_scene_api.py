@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
+import numpy as np
 import pytest
 
+from studio.clip_pose import pose_clip
+from studio.scene import support_height
 from tests.studio.conftest import StudioProcess, wait_for
 
 pytestmark = pytest.mark.integration
@@ -95,3 +99,24 @@ def test_startup_plays_the_demo_clip_and_clip_none_starts_empty(tmp_path) -> Non
         assert server.get("/api/scene/state").json().get("clip") is None
     finally:
         server.stop()
+
+
+def test_follow_height_keeps_a_climb_in_view_and_the_feet_on_the_ground(test_data) -> None:
+    """The level camera follow lowers the ground by: ~2 m at the top of MimicKit's climbing clip, ~0 for
+    a walk and the demo squat, and never above the feet (they would sink through the ground)."""
+    humanoid = test_data / "assets" / "humanoid" / "humanoid.xml"
+    squat = Path(__file__).parents[2] / "data" / "motions" / "humanoid_demo_squat.pkl"
+    heights = {}
+    for clip in (
+        test_data / "motions/humanoid/parc/humanoid_climb00.pkl",
+        test_data / WALK.removeprefix("data/"),
+        squat,
+    ):
+        pose = pose_clip(clip, humanoid)
+        feet = pose.foot_low_z.min(axis=1)
+        h = support_height(feet, pose.fps)
+        assert h.shape == (pose.num_frames,) and np.all(h <= feet + 1e-6)
+        heights[clip.stem] = (float(h.min()), float(h.max()))
+    assert heights["humanoid_climb00"][1] - heights["humanoid_climb00"][0] > 1.5
+    for still in ("humanoid_walk", "humanoid_demo_squat"):
+        assert max(abs(v) for v in heights[still]) < 0.03, heights[still]
