@@ -248,3 +248,23 @@ def test_a_character_in_its_default_pose(studio: StudioProcess) -> None:
         assert studio.get("/api/characters/pose", params={"path": bad}).status_code == 403
         assert studio.post("/api/scene/show_character", {"path": bad}).status_code == 403
     assert studio.get("/api/characters/pose", params={"path": "data/assets/nope.xml"}).status_code == 404
+
+
+def test_a_character_that_does_not_load_is_listed_with_its_reason(tmp_path) -> None:
+    data = tmp_path / "data"
+    (data / "assets" / "broken").mkdir(parents=True)
+    (data / "assets" / "broken" / "broken.xml").write_text("<mujoco><worldbody><body name='a'>")  # cut off
+    (data / "motions").mkdir()
+    (data / "motions" / "odd.pkl").write_bytes(_clip_bytes(10))
+    (tmp_path / "runs").mkdir()
+    server = StudioProcess(tmp_path / "runs", data, "--clip", "none")
+    try:
+        chars = {c["path"]: c for c in server.get("/api/characters").json()}
+        broken = chars["data/assets/broken/broken.xml"]
+        assert broken["error"] and "\n" not in broken["error"] and "dof_size" not in broken
+        odd = next(m for m in server.get("/api/motions").json() if m["path"] == "data/motions/odd.pkl")
+        tried = {t["path"]: t["reason"] for t in odd["characters_tried"]}
+        assert tried["data/assets/broken/broken.xml"] == f"did not load: {broken['error']}"
+        assert "broken.xml (did not load:" in odd["character_error"]
+    finally:
+        server.stop()
