@@ -38,7 +38,7 @@ def _train_rank(rank: int, world: int, port: int, out_dir: str) -> None:
         summary = agent.train_model(2 * world * NUM_ENVS * STEPS, out_dir)
         params = torch.nn.utils.parameters_to_vector(agent.parameters()).detach()
         torch.save(
-            {"params": params, "obs_mean": agent._obs_norm.get_mean(), "samples": summary.samples,
+            {"params": params, "obs_mean": agent.state_dict()["_obs_norm._mean"], "samples": summary.samples,
              "iterations": summary.iterations},
             Path(out_dir) / f"rank{rank}.pt",
         )  # fmt: skip

@@ -20,8 +20,8 @@ NUM_ENVS = 32
 SAMPLES_PER_ITER = NUM_ENVS * 20
 
 
-def make_ppo(num_envs: int = NUM_ENVS, extra_obs: int = 0, **overrides) -> BaseAgent:
-    env = TargetReachEnv(num_envs=num_envs, extra_obs=extra_obs)
+def make_ppo(num_envs: int = NUM_ENVS, extra_obs: int = 0, env: TargetReachEnv | None = None, **overrides) -> BaseAgent:
+    env = env or TargetReachEnv(num_envs=num_envs, extra_obs=extra_obs)
     return build_agent_from_config(PPOAgentConfig(**ppo_config_dict(**overrides)), env, "cpu")
 
 
@@ -112,8 +112,11 @@ def test_resume_continues_iterations_samples_and_optimizer(tmp_path):
     resumed = make_ppo(iters_per_output=1)
     resumed.load(tmp_path / "model.pt")
     assert resumed.get_iteration() == 3 and resumed.get_sample_count() == 3 * SAMPLES_PER_ITER
-    opt_a = first._actor_optimizer.state_dict()["optimizer"]["state"]
-    opt_b = resumed._actor_optimizer.state_dict()["optimizer"]["state"]
+    resumed.save(tmp_path / "resumed.pt")  # what it restored, as its own checkpoint writes it
+    opt_a = torch.load(tmp_path / "model.pt", weights_only=True)[TRAIN_STATE_KEY]["optimizers"]["actor"]
+    opt_b = torch.load(tmp_path / "resumed.pt", weights_only=True)[TRAIN_STATE_KEY]["optimizers"]["actor"]
+    assert opt_a["steps"] == opt_b["steps"] > 0
+    opt_a, opt_b = opt_a["optimizer"]["state"], opt_b["optimizer"]["state"]
     assert all(torch.equal(opt_a[i]["exp_avg"], opt_b[i]["exp_avg"]) for i in opt_a)
 
     summary = resumed.train_model(5 * SAMPLES_PER_ITER, tmp_path)
@@ -131,8 +134,8 @@ def test_resume_continues_iterations_samples_and_optimizer(tmp_path):
 
 
 def test_request_stop_ends_training_and_saves(tmp_path):
-    agent = make_ppo(iters_per_output=100)
-    env = agent._env
+    env = TargetReachEnv(num_envs=NUM_ENVS)
+    agent = make_ppo(env=env, iters_per_output=100)
     real_step = env.step
     train_steps = 0
 
@@ -183,8 +186,8 @@ def test_no_agent_file_gives_the_dummy_agent_with_zero_actions():
 def test_divergence_guard_names_the_first_non_finite_quantity(tmp_path, corrupt, reason):
     """One env's observation (or reward) of the third iteration turns non-finite: training stops in that
     iteration, names it, keeps its metrics row and leaves model.pt with the finite weights it started from."""
-    agent = make_ppo(iters_per_output=100)
-    env = agent._env
+    env = TargetReachEnv(num_envs=NUM_ENVS)
+    agent = make_ppo(env=env, iters_per_output=100)
     real_step = env.step
     train_steps = 0
 

@@ -54,8 +54,9 @@ def test_awr_weights_are_clipped_not_the_advantages():
 def test_gaussian_head_log_prob_entropy_and_init():
     torch.manual_seed(0)
     head = GaussianDiagHead(8, 3, "FIXED", init_std=0.05, init_output_scale=0.01)
-    assert not head._logstd_net.requires_grad
-    assert head._mean_net.weight.abs().max() <= 0.01 and torch.all(head._mean_net.bias == 0)
+    params = dict(head.named_parameters())  # the reference's checkpoint names
+    assert not params["_logstd_net"].requires_grad
+    assert params["_mean_net.weight"].abs().max() <= 0.01 and torch.all(params["_mean_net.bias"] == 0)
     feats = torch.randn(5, 8)
     dist = head(feats)
     x = dist.sample()
