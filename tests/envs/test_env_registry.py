@@ -18,6 +18,7 @@ from mimickit.envs.sim_env import SimEnv
 from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
+from tests.util.config_errors import load_error
 
 ENGINE = PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml"
 DEEPMIMIC = PROJECT_DATA_DIR / "envs" / "deepmimic_humanoid_env.yaml"
@@ -83,11 +84,8 @@ def test_an_unknown_env_name_is_one_line_naming_the_nearest(tmp_path):
     ],
 )
 def test_odd_env_names_are_one_line(tmp_path, text, needle):
-    f = tmp_path / "env.yaml"
-    f.write_text(text)
-    with pytest.raises(MimicKitError) as e:
-        load_env_configs(f, ENGINE)
-    assert str(e.value).startswith(f"{f}: ") and needle in str(e.value) and "\n" not in str(e.value)
+    f, msg = load_error(tmp_path, text, lambda f: load_env_configs(f, ENGINE), "env.yaml")
+    assert msg.startswith(f"{f}: ") and needle in msg and "\n" not in msg
 
 
 def test_a_config_built_in_code_with_an_unknown_name_is_refused_by_the_builder(tmp_path):

@@ -3,6 +3,7 @@ import pytest
 from mimickit.learning.agent_config import AWRAgentConfig, PPOAgentConfig, load_agent_config
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
+from tests.util.config_errors import load_error
 
 
 def test_shipped_humanoid_yamls_have_the_reference_values():
@@ -26,11 +27,8 @@ def test_shipped_humanoid_yamls_have_the_reference_values():
     ],
 )
 def test_bad_agent_yaml_names_file_and_key(tmp_path, text, needle):
-    f = tmp_path / "agent.yaml"
-    f.write_text(text)
-    with pytest.raises(MimicKitError) as e:
-        load_agent_config(f)
-    assert str(f) in str(e.value) and needle in str(e.value)
+    f, msg = load_error(tmp_path, text, load_agent_config, "agent.yaml")
+    assert str(f) in msg and needle in msg
 
 
 def test_unknown_key_is_refused(tmp_path):

@@ -14,6 +14,7 @@ from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
 from tests.learning.toy_env import TargetReachEnv
+from tests.util.config_errors import load_error
 
 
 def shipped_agent_yamls() -> dict[str, Path]:
@@ -67,13 +68,10 @@ def test_an_unknown_agent_name_is_one_line_naming_the_nearest(tmp_path):
     ],
 )
 def test_odd_agent_names_are_one_line(tmp_path, value, needle):
-    f = tmp_path / "agent.yaml"
-    f.write_text(f"agent_name: {value}\n")
-    with pytest.raises(MimicKitError) as e:
-        load_agent_config(f)
-    assert needle in str(e.value) and "\n" not in str(e.value)
+    f, msg = load_error(tmp_path, f"agent_name: {value}\n", load_agent_config, "agent.yaml")
+    assert needle in msg and "\n" not in msg
     if value == "Zebra":
-        assert "did you mean" not in str(e.value)
+        assert "did you mean" not in msg
 
 
 def test_a_config_built_in_code_with_an_unknown_name_is_refused_by_the_builder():

@@ -2,6 +2,7 @@ import pytest
 
 from mimickit.util.config import ConfigModel, format_validation_error, load_config, load_yaml_text
 from mimickit.util.errors import MimicKitError
+from tests.util.config_errors import load_error
 
 
 class Agent(ConfigModel):
@@ -29,12 +30,8 @@ def test_scientific_notation_string_is_a_number(tmp_path):
     ],
 )
 def test_errors_name_file_and_key(tmp_path, text, needle):
-    f = tmp_path / "agent.yaml"
-    f.write_text(text)
-    with pytest.raises(MimicKitError) as e:
-        load_config(Agent, f)
-    assert needle in str(e.value)
-    assert "agent.yaml" in str(e.value)
+    _, msg = load_error(tmp_path, text, lambda f: load_config(Agent, f), "agent.yaml")
+    assert needle in msg and "agent.yaml" in msg
 
 
 def test_missing_file(tmp_path):
