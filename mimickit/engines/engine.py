@@ -20,13 +20,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
 from pydantic import Field, field_validator, model_validator
 
 from mimickit.anim.kin_char_model import KinCharModel
+from mimickit.anim.mjcf_char_model import load_char_model
+from mimickit.engines.engine_records import ObjLayout, ObjRecord
 from mimickit.util.config import ConfigModel, parse_config
 from mimickit.util.errors import MimicKitError
 from mimickit.util.registry import Entry, Registry
@@ -171,12 +173,6 @@ EnvIds = torch.Tensor | np.ndarray | list[int] | None
 """Env indices (LongTensor / int array / list) or None for all envs."""
 
 
-class ObjRecord(Protocol):
-    """What an engine stores per `create_obj` call; equal signatures = the same object in every env."""
-
-    def signature(self) -> tuple: ...
-
-
 @dataclass(frozen=True)
 class ViewObject:
     """One object of a `MujocoView`, at its obj_id."""
@@ -208,6 +204,22 @@ def ball_cone_angle(low: np.ndarray, high: np.ndarray) -> float | None:
     return angle if angle < math.pi else None
 
 
+def has_motors(mode: ControlMode, rec: ObjRecord, kin: KinCharModel) -> bool:
+    """Whether an object's DoFs get actuators: a control mode, motors not disabled, and DoFs to drive."""
+    return mode != ControlMode.none and not rec.disable_motors and kin.get_dof_size() > 0
+
+
+def mode_gains(mode: ControlMode, kin: KinCharModel, actuated: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(kp, kd) [D] as the control mode uses an object's MJCF gains: zero without motors and in torque
+    mode, damping only in vel mode, both otherwise."""
+    kp, kd = kin.dof_array("kp"), kin.dof_array("kd")
+    if not actuated or mode in (ControlMode.torque, ControlMode.none):
+        return np.zeros_like(kp), np.zeros_like(kd)
+    if mode == ControlMode.vel:
+        return np.zeros_like(kp), kd
+    return kp, kd
+
+
 class Engine(abc.ABC):
     """Base class of the physics engines; see the module docstring for shapes and frames."""
 
@@ -218,6 +230,9 @@ class Engine(abc.ABC):
         self._num_envs = int(num_envs)
         self._device = torch.device(device)
         self._env_objs: list[list[ObjRecord]] = []  # per env, per object
+        self._layouts: list[ObjLayout] = []  # per object, where it lives in the built model (initialize_sim)
+        self._kin_cache: dict[str, KinCharModel] = {}  # per asset file
+        self._sim_time = 0.0
         self._start_poses: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per env, per obj: (pos[3], xyzw[4])
 
     @property
@@ -238,7 +253,6 @@ class Engine(abc.ABC):
         self._start_poses.append([])
         return env_id
 
-    @abc.abstractmethod
     def create_obj(
         self,
         env_id: int,
@@ -255,8 +269,13 @@ class Engine(abc.ABC):
     ) -> int:
         """Add an object (MJCF asset) to env `env_id`; returns its obj_id (creation order within the env).
 
-        start_pos [3] and start_rot [4] (xyzw) default to the origin and identity; color is RGB in [0, 1].
+        start_pos [3] and start_rot [4] (xyzw) default to the origin and identity; color is RGB(A) in [0, 1].
+        The engine builds every object in `initialize_sim`.
         """
+        path = self._check_new_obj(env_id, asset_file)
+        rgb = None if color is None else tuple(float(c) for c in np.asarray(color).ravel())
+        rec = ObjRecord(ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root, rgb, disable_motors)
+        return self._add_obj(env_id, rec, start_pos, start_rot)
 
     @abc.abstractmethod
     def initialize_sim(self) -> None:
@@ -288,7 +307,7 @@ class Engine(abc.ABC):
         self._start_poses[env_id].append((pos, rot / np.linalg.norm(rot)))
         return len(self._env_objs[env_id]) - 1
 
-    def _check_env_objects(self) -> list[Any]:
+    def _check_env_objects(self) -> list[ObjRecord]:
         """Every env created, each with env 0's objects (one model serves all envs); returns env 0's."""
         if len(self._env_objs) != self._num_envs:
             raise MimicKitError(f"initialize_sim: {len(self._env_objs)} of {self._num_envs} envs were created")
@@ -300,6 +319,12 @@ class Engine(abc.ABC):
                     "object lists"
                 )
         return objs
+
+    def _kin_model(self, asset_file: str) -> KinCharModel:
+        """The kinematic model of an asset, loaded once per file."""
+        if asset_file not in self._kin_cache:
+            self._kin_cache[asset_file] = load_char_model(asset_file)
+        return self._kin_cache[asset_file]
 
     def _warn_explicit_damping(self, kin: KinCharModel, kd: np.ndarray, inertia: np.ndarray) -> None:
         """pd_explicit applies the damping explicitly: a DoF of effective inertia M (mass-matrix diagonal with
@@ -350,16 +375,16 @@ class Engine(abc.ABC):
     def get_control_mode(self) -> ControlMode:
         return self._config.control_mode
 
-    @abc.abstractmethod
     def get_sim_time(self) -> float:
         """Simulated seconds since initialize_sim."""
+        return self._sim_time
 
     @abc.abstractmethod
     def get_gravity(self) -> np.ndarray:
         """Gravity vector (3,)."""
 
-    @abc.abstractmethod
-    def get_objs_per_env(self) -> int: ...
+    def get_objs_per_env(self) -> int:
+        return len(self._env_objs[0]) if self._env_objs else 0
 
     # ------------------------------------------------------------------ what viewers and the bench read
     @abc.abstractmethod
@@ -386,28 +411,33 @@ class Engine(abc.ABC):
 
     # ------------------------------------------------------------------ state getters (live [N, ...] views)
     @abc.abstractmethod
+    def _state_tensor(self, obj_id: int, name: str) -> torch.Tensor:
+        """Object `obj_id`'s live getter tensor `name` (`engine_records.state_shapes`), with pending setter
+        edits applied."""
+
     def get_root_pos(self, obj_id: int) -> torch.Tensor:
         """[N, 3] root origin position (env-local)."""
+        return self._state_tensor(obj_id, "root_pos")
 
-    @abc.abstractmethod
     def get_root_rot(self, obj_id: int) -> torch.Tensor:
         """[N, 4] root orientation, xyzw."""
+        return self._state_tensor(obj_id, "root_rot")
 
-    @abc.abstractmethod
     def get_root_vel(self, obj_id: int) -> torch.Tensor:
         """[N, 3] root centre-of-mass linear velocity, world frame."""
+        return self._state_tensor(obj_id, "root_vel")
 
-    @abc.abstractmethod
     def get_root_ang_vel(self, obj_id: int) -> torch.Tensor:
         """[N, 3] root angular velocity, world frame."""
+        return self._state_tensor(obj_id, "root_ang_vel")
 
-    @abc.abstractmethod
     def get_dof_pos(self, obj_id: int) -> torch.Tensor:
         """[N, D] joint coordinates (hinge angles, spherical exp-maps)."""
+        return self._state_tensor(obj_id, "dof_pos")
 
-    @abc.abstractmethod
     def get_dof_vel(self, obj_id: int) -> torch.Tensor:
         """[N, D] joint velocities (spherical: local angular velocity)."""
+        return self._state_tensor(obj_id, "dof_vel")
 
     def get_joint_rot(self, obj_id: int) -> torch.Tensor:
         """[N, J-1, 4] each joint's local rotation, xyzw (identity for fixed joints): the DoFs as the
@@ -419,29 +449,29 @@ class Engine(abc.ABC):
     def get_dof_forces(self, obj_id: int) -> torch.Tensor:
         """[N, D] actuator forces of the last substep."""
 
-    @abc.abstractmethod
     def get_body_pos(self, obj_id: int) -> torch.Tensor:
         """[N, B, 3] body origin positions."""
+        return self._state_tensor(obj_id, "body_pos")
 
-    @abc.abstractmethod
     def get_body_rot(self, obj_id: int) -> torch.Tensor:
         """[N, B, 4] body orientations, xyzw."""
+        return self._state_tensor(obj_id, "body_rot")
 
-    @abc.abstractmethod
     def get_body_vel(self, obj_id: int) -> torch.Tensor:
         """[N, B, 3] body centre-of-mass linear velocities, world frame."""
+        return self._state_tensor(obj_id, "body_vel")
 
-    @abc.abstractmethod
     def get_body_ang_vel(self, obj_id: int) -> torch.Tensor:
         """[N, B, 3] body angular velocities, world frame."""
+        return self._state_tensor(obj_id, "body_ang_vel")
 
-    @abc.abstractmethod
     def get_contact_forces(self, obj_id: int) -> torch.Tensor:
         """[N, B, 3] total contact force acting on each body, world frame."""
+        return self._state_tensor(obj_id, "contact_forces")
 
-    @abc.abstractmethod
     def get_ground_contact_forces(self, obj_id: int) -> torch.Tensor:
         """[N, B, 3] contact force from the ground acting on each body, world frame."""
+        return self._state_tensor(obj_id, "ground_contact_forces")
 
     # ------------------------------------------------------------------ state setters
     @abc.abstractmethod
@@ -489,35 +519,37 @@ class Engine(abc.ABC):
         `rot_to_dof`: what a reset to a clip frame does."""
         self.set_dof_pos(env_ids, obj_id, self._obj_kin(obj_id).rot_to_dof(joint_rot))
 
-    @abc.abstractmethod
     def _obj_kin(self, obj_id: int) -> KinCharModel:
         """The kinematic model of object `obj_id` (its joints and DoF layout)."""
+        return self._layouts[obj_id].kin
 
     # ------------------------------------------------------------------ model queries
-    @abc.abstractmethod
-    def get_obj_num_dofs(self, obj_id: int) -> int: ...
+    def get_obj_num_dofs(self, obj_id: int) -> int:
+        return self._layouts[obj_id].num_dofs
 
-    @abc.abstractmethod
-    def get_obj_num_bodies(self, obj_id: int) -> int: ...
+    def get_obj_num_bodies(self, obj_id: int) -> int:
+        return self._layouts[obj_id].num_bodies
 
-    @abc.abstractmethod
     def get_obj_body_names(self, obj_id: int) -> list[str]:
         """Body names in the kinematic model's DFS order."""
+        return self._obj_kin(obj_id).get_body_names()
 
-    @abc.abstractmethod
-    def find_obj_body_id(self, obj_id: int, name: str) -> int: ...
+    def find_obj_body_id(self, obj_id: int, name: str) -> int:
+        return self._obj_kin(obj_id).get_body_id(name)
 
-    @abc.abstractmethod
     def get_obj_torque_limits(self, env_id: int, obj_id: int) -> np.ndarray:
         """[D] torque limits."""
+        return self._obj_kin(obj_id).dof_array("torque_limit")
 
-    @abc.abstractmethod
     def get_obj_dof_limits(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
         """(low [D], high [D]) per-DoF position limits (action bounds)."""
+        low, high = self._obj_kin(obj_id).dof_limits()
+        return low.copy(), high.copy()
 
-    @abc.abstractmethod
     def get_obj_pd_gains(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
         """(kp [D], kd [D]) as used by the control mode."""
+        lay = self._layouts[obj_id]
+        return lay.kp.copy(), lay.kd.copy()
 
     @abc.abstractmethod
     def calc_obj_mass(self, env_id: int, obj_id: int) -> float: ...

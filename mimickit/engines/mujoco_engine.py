@@ -43,7 +43,7 @@ import os
 import queue
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -52,7 +52,6 @@ import numpy as np
 import torch
 
 from mimickit.anim.kin_char_model import JointType, KinCharModel
-from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.mjcf_loader import compile_spec, load_mjcf_spec
 from mimickit.engines.engine import (
     ControlMode,
@@ -60,10 +59,12 @@ from mimickit.engines.engine import (
     EngineConfig,
     EnvIds,
     MujocoView,
-    ObjType,
     ViewObject,
     ball_cone_angle,
+    has_motors,
+    mode_gains,
 )
+from mimickit.engines.engine_records import ObjLayout, ObjRecord, ObjState, state_shapes
 from mimickit.util import torch_util as tu
 
 if TYPE_CHECKING:
@@ -104,29 +105,10 @@ other (fixed chunks of 16 envs left one core idle ~2 ms per control step at 256 
 
 
 # ---------------------------------------------------------------------------------------------- records
-@dataclass
-class _ObjRecord:
-    """What `create_obj` was asked for; identical in every env except the start pose."""
-
-    obj_type: ObjType
-    asset_file: str
-    name: str
-    is_visual: bool
-    enable_self_collisions: bool
-    fix_root: bool
-    color: tuple[float, ...] | None
-    disable_motors: bool
-
-    def signature(self) -> tuple:
-        return (self.obj_type, self.asset_file, self.is_visual, self.enable_self_collisions, self.fix_root,
-                self.disable_motors)  # fmt: skip
-
-
-@dataclass
-class _ObjLayout:
+@dataclass(kw_only=True)
+class _ObjLayout(ObjLayout):
     """Where an object lives in the compiled model. Index arrays address qpos/qvel/body/sensor columns."""
 
-    kin: KinCharModel
     prefix: str
     body_ids: np.ndarray  # [B] MuJoCo body ids in kinematic DFS order
     root_qpos: int  # qpos address of the free root joint, -1 for a mocap (fixed) root
@@ -145,38 +127,19 @@ class _ObjLayout:
     body_adr: np.ndarray  # [B, 13] sensordata columns: position, rotation (x y z w), COM velocity, angular velocity
     contact_adr: np.ndarray  # [B * 3] sensordata columns: total contact force per body (on the sensor's body1)
     ground_adr: np.ndarray  # [B * 3] sensordata columns: floor contact force per body
-    kp: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [D] gains as used by the control mode
-    kd: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    @property
-    def num_dofs(self) -> int:
-        return len(self.dof_qvel)
-
-    @property
-    def num_bodies(self) -> int:
-        return len(self.body_ids)
 
 
-class _ObjState:
-    """One object's state buffers. The refresh writes float32 numpy arrays `host[name]`; the getters return
-    the torch tensors `tensors[name]`, which share memory with `host` on the CPU and are uploaded copies on
-    another device. Names and shapes: body_pos/body_vel/body_ang_vel/contact_forces/ground_contact_forces
-    [N, B, 3], body_rot [N, B, 4], dof_pos/dof_vel/dof_forces [N, D], joint_rot [N, B-1, 4]; root_pos/root_rot/root_vel/
-    root_ang_vel [N, 3|4] are views of body 0 of the body buffers (the root is body 0)."""
+class _ObjState(ObjState):
+    """One object's state buffers. The refresh writes float32 numpy arrays `host[name]` (`state_shapes`,
+    joint_rot included); the getters return the torch tensors `tensors[name]`, which share memory with
+    `host` on the CPU and are uploaded copies on another device."""
 
     def __init__(self, n: int, b: int, d: int, device: torch.device):
-        shapes = {
-            "body_pos": (n, b, 3), "body_rot": (n, b, 4), "body_vel": (n, b, 3), "body_ang_vel": (n, b, 3),
-            "contact_forces": (n, b, 3), "ground_contact_forces": (n, b, 3),
-            "dof_pos": (n, d), "dof_vel": (n, d), "dof_forces": (n, d), "joint_rot": (n, max(b - 1, 0), 4),
-        }  # fmt: skip
-        self.host = {k: np.zeros(shape, dtype=np.float32) for k, shape in shapes.items()}
+        self.host = {k: np.zeros(s, dtype=np.float32) for k, s in state_shapes(n, b, d, joint_rot=True).items()}
         self.on_cpu = device.type == "cpu"
-        self.tensors = {
+        super().__init__({
             k: torch.from_numpy(a) if self.on_cpu else torch.zeros(a.shape, device=device) for k, a in self.host.items()
-        }
-        for root, body in _ROOT_VIEWS.items():
-            self.tensors[root] = self.tensors[body][:, 0]
+        })  # fmt: skip
 
     def upload(self, rows: slice | np.ndarray, names: tuple[str, ...] | None = None) -> None:
         """Copy refreshed host rows to the device tensors (nothing to do on the CPU)."""
@@ -190,9 +153,6 @@ class _ObjState:
                 t[torch.from_numpy(rows).to(t.device)] = torch.from_numpy(a[rows]).to(t.device)
 
 
-_ROOT_VIEWS = {"root_pos": "body_pos", "root_rot": "body_rot", "root_vel": "body_vel", "root_ang_vel": "body_ang_vel"}
-
-
 # ---------------------------------------------------------------------------------------------- scene build
 def _zero_like(value: object) -> object:
     """0 in the shape MuJoCo uses for this attribute (scalar in older versions, array in 4.x)."""
@@ -200,7 +160,7 @@ def _zero_like(value: object) -> object:
 
 
 def _adapt_object_spec(
-    spec: mujoco.MjSpec, rec: _ObjRecord, kin: KinCharModel, limit_balls: bool
+    spec: mujoco.MjSpec, rec: ObjRecord, kin: KinCharModel, limit_balls: bool
 ) -> dict[str, list[float]]:
     """Make an asset's spec simulation-ready in place; returns per-axis armature of each new ball joint.
     With `limit_balls` every ball joint gets its cone limit (`ball_cone_angle`), else none."""
@@ -363,12 +323,10 @@ class MujocoEngine(Engine):
 
     def __init__(self, config: EngineConfig, num_envs: int, device: torch.device | str, visualize: bool = False):
         super().__init__(config, num_envs, device, visualize)
-        self._kin_cache: dict[str, KinCharModel] = {}
         self.mj_model: mujoco.MjModel | None = None
         self.mj_datas: list[mujoco.MjData] = []
         self._pool: ThreadPoolExecutor | None = None
         self._chunks: list[slice] = []  # env rows per worker thread, set by initialize_sim
-        self._sim_time = 0.0
         self._view_objects: tuple[ViewObject, ...] | None = None  # mujoco_view's, built on its first call
 
     def get_name(self) -> str:
@@ -377,26 +335,6 @@ class MujocoEngine(Engine):
     # ------------------------------------------------------------------ creation
     def _sim_initialized(self) -> bool:
         return self.mj_model is not None
-
-    def create_obj(
-        self,
-        env_id: int,
-        obj_type: ObjType,
-        asset_file: str,
-        name: str,
-        is_visual: bool = False,
-        enable_self_collisions: bool = True,
-        fix_root: bool = False,
-        start_pos: np.ndarray | None = None,
-        start_rot: np.ndarray | None = None,
-        color: np.ndarray | None = None,
-        disable_motors: bool = False,
-    ) -> int:
-        path = self._check_new_obj(env_id, asset_file)
-        rec = _ObjRecord(ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root,
-                         None if color is None else tuple(float(c) for c in np.asarray(color).ravel()),
-                         disable_motors)  # fmt: skip
-        return self._add_obj(env_id, rec, start_pos, start_rot)
 
     def initialize_sim(self) -> None:
         objs = self._check_env_objects()
@@ -439,12 +377,7 @@ class MujocoEngine(Engine):
                 kp[lay.act_ids], kd[lay.act_ids] = lay.kp, lay.kd
         return kp, kd
 
-    def _kin_model(self, asset_file: str) -> KinCharModel:
-        if asset_file not in self._kin_cache:
-            self._kin_cache[asset_file] = load_char_model(asset_file)
-        return self._kin_cache[asset_file]
-
-    def _build_model(self, objs: list[_ObjRecord]) -> tuple[mujoco.MjModel, list[_ObjLayout]]:
+    def _build_model(self, objs: list[ObjRecord]) -> tuple[mujoco.MjModel, list[_ObjLayout]]:
         cfg = self._config
         scene = mujoco.MjSpec()
         scene.modelname = "mimickit_scene"
@@ -459,7 +392,7 @@ class MujocoEngine(Engine):
             scene.attach(spec, prefix=prefix, frame=scene.worldbody.add_frame())
             if not rec.enable_self_collisions:
                 _exclude_self_collisions(scene, prefix, kin)
-            if self._has_motors(rec, kin):
+            if has_motors(self._config.control_mode, rec, kin):
                 _add_dof_actuators(scene, prefix, kin, cfg.control_mode)
             _add_body_sensors(scene, prefix, kin)
             if not rec.is_visual:
@@ -473,7 +406,7 @@ class MujocoEngine(Engine):
                 m.dof_armature[m.jnt_dofadr[j] : m.jnt_dofadr[j] + 3] = values
         return m, layouts
 
-    def _layout(self, m: mujoco.MjModel, rec: _ObjRecord, prefix: str) -> _ObjLayout:
+    def _layout(self, m: mujoco.MjModel, rec: ObjRecord, prefix: str) -> _ObjLayout:
         kin = self._kin_model(rec.asset_file)
         body_ids = np.array([m.body(prefix + n).id for n in kin.body_names])
         root = int(body_ids[0])
@@ -497,7 +430,7 @@ class MujocoEngine(Engine):
                 ball_qpos.append([qadr + k for k in range(4)])
                 dof_qvel += [vadr + k for k in range(3)]
                 ball_joints.append(jid)
-        act_names = self._actuator_names(kin) if self._has_motors(rec, kin) else []
+        act_names = self._actuator_names(kin) if has_motors(self._config.control_mode, rec, kin) else []
         act_ids = np.array([m.actuator(prefix + a).id for a in act_names], dtype=np.int64)
         body_adr = [
             [col for suffix, _, _ in _BODY_SENSORS for col in _sensor_columns(m, f"{prefix}{n}_{suffix}")]
@@ -510,6 +443,7 @@ class MujocoEngine(Engine):
                 ground_adr += _sensor_columns(m, f"{prefix}{n}_ground")
         lay = _ObjLayout(
             kin=kin,
+            actuated=has_motors(self._config.control_mode, rec, kin),
             prefix=prefix,
             body_ids=body_ids,
             root_qpos=int(m.jnt_qposadr[root_jnt]) if free else -1,
@@ -529,24 +463,12 @@ class MujocoEngine(Engine):
             contact_adr=np.array(contact_adr, dtype=np.int64),
             ground_adr=np.array(ground_adr, dtype=np.int64),
         )
-        lay.kp, lay.kd = self._mode_gains(rec, kin)
+        lay.kp, lay.kd = mode_gains(self._config.control_mode, kin, lay.actuated)
         return lay
-
-    def _has_motors(self, rec: _ObjRecord, kin: KinCharModel) -> bool:
-        return self._config.control_mode != ControlMode.none and not rec.disable_motors and kin.get_dof_size() > 0
 
     @staticmethod
     def _actuator_names(kin: KinCharModel) -> list[str]:
         return [f"{j.name}_{'xyz'[a]}" if j.dof_dim == 3 else j.name for j in kin.joints[1:] for a in range(j.dof_dim)]
-
-    def _mode_gains(self, rec: _ObjRecord, kin: KinCharModel) -> tuple[np.ndarray, np.ndarray]:
-        kp, kd = kin.dof_array("kp"), kin.dof_array("kd")
-        mode = self._config.control_mode
-        if not self._has_motors(rec, kin) or mode in (ControlMode.torque, ControlMode.none):
-            return np.zeros_like(kp), np.zeros_like(kd)
-        if mode == ControlMode.vel:
-            return np.zeros_like(kp), kd
-        return kp, kd
 
     def _place_start_poses(self) -> None:
         """Write every env's start poses into the stacked state (pushed into MjData by `_sync`)."""
@@ -732,29 +654,11 @@ class MujocoEngine(Engine):
         self._sync()
         return self._states[obj_id]
 
-    def get_root_pos(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["root_pos"]
-
-    def get_root_rot(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["root_rot"]
-
-    def get_root_vel(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["root_vel"]
-
-    def get_root_ang_vel(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["root_ang_vel"]
-
-    def get_dof_pos(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["dof_pos"]
-
-    def get_dof_vel(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["dof_vel"]
+    def _state_tensor(self, obj_id: int, name: str) -> torch.Tensor:
+        return self._state(obj_id).tensors[name]
 
     def get_joint_rot(self, obj_id: int) -> torch.Tensor:
         return self._state(obj_id).tensors["joint_rot"]
-
-    def _obj_kin(self, obj_id: int) -> KinCharModel:
-        return self._layouts[obj_id].kin
 
     def get_dof_forces(self, obj_id: int) -> torch.Tensor:
         """[N, D] actuator forces of the last substep, read from MjData at this call (not a live view)."""
@@ -763,24 +667,6 @@ class MujocoEngine(Engine):
             st.host["dof_forces"][:] = np.stack([d.actuator_force[lay.act_ids] for d in self.mj_datas])
             st.upload(slice(None), ("dof_forces",))
         return st.tensors["dof_forces"]
-
-    def get_body_pos(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["body_pos"]
-
-    def get_body_rot(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["body_rot"]
-
-    def get_body_vel(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["body_vel"]
-
-    def get_body_ang_vel(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["body_ang_vel"]
-
-    def get_contact_forces(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["contact_forces"]
-
-    def get_ground_contact_forces(self, obj_id: int) -> torch.Tensor:
-        return self._state(obj_id).tensors["ground_contact_forces"]
 
     # ------------------------------------------------------------------ setters
     def set_root_pos(self, env_ids: EnvIds, obj_id: int, root_pos: torch.Tensor | float) -> None:
@@ -940,37 +826,8 @@ class MujocoEngine(Engine):
         return self._ctrl.copy()
 
     # ------------------------------------------------------------------ queries
-    def get_sim_time(self) -> float:
-        return self._sim_time
-
     def get_gravity(self) -> np.ndarray:
         return self.mj_model.opt.gravity.copy()
-
-    def get_objs_per_env(self) -> int:
-        return len(self._env_objs[0]) if self._env_objs else 0
-
-    def get_obj_num_dofs(self, obj_id: int) -> int:
-        return self._layouts[obj_id].num_dofs
-
-    def get_obj_num_bodies(self, obj_id: int) -> int:
-        return self._layouts[obj_id].num_bodies
-
-    def get_obj_body_names(self, obj_id: int) -> list[str]:
-        return self._layouts[obj_id].kin.get_body_names()
-
-    def find_obj_body_id(self, obj_id: int, name: str) -> int:
-        return self._layouts[obj_id].kin.get_body_id(name)
-
-    def get_obj_torque_limits(self, env_id: int, obj_id: int) -> np.ndarray:
-        return self._layouts[obj_id].kin.dof_array("torque_limit")
-
-    def get_obj_dof_limits(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
-        low, high = self._layouts[obj_id].kin.dof_limits()
-        return low.copy(), high.copy()
-
-    def get_obj_pd_gains(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
-        lay = self._layouts[obj_id]
-        return lay.kp.copy(), lay.kd.copy()
 
     def calc_obj_mass(self, env_id: int, obj_id: int) -> float:
         return float(self.mj_model.body_mass[self._layouts[obj_id].body_ids].sum())

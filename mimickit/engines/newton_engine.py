@@ -40,16 +40,16 @@ the one counterpart, fed by the solver's CONTACT_F observable after the last sub
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 import torch
 
-from mimickit.anim.kin_char_model import JointType, KinCharModel
-from mimickit.anim.mjcf_char_model import load_char_model
-from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, MujocoView, ObjType
+from mimickit.anim.kin_char_model import JointType
+from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, MujocoView, has_motors, mode_gains
+from mimickit.engines.engine_records import ObjLayout, ObjRecord, ObjState
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
 
@@ -75,29 +75,10 @@ GROUND_LABEL = "ground_plane"
 
 
 # ---------------------------------------------------------------------------------------------- records
-@dataclass
-class _ObjRecord:
-    """What `create_obj` was asked for; identical in every env except the start pose."""
-
-    obj_type: ObjType
-    asset_file: str
-    name: str
-    is_visual: bool
-    enable_self_collisions: bool
-    fix_root: bool
-    disable_motors: bool
-    color: tuple[float, ...] | None = None  # not simulated: what `mujoco_view`'s MuJoCo copy draws with
-
-    def signature(self) -> tuple:
-        return (self.obj_type, self.asset_file, self.is_visual, self.enable_self_collisions, self.fix_root,
-                self.disable_motors)  # fmt: skip
-
-
-@dataclass
-class _ObjLayout:
+@dataclass(kw_only=True)
+class _ObjLayout(ObjLayout):
     """Where an object lives inside one world. Indices are per world (add `world * stride`)."""
 
-    kin: KinCharModel
     bodies: slice  # body rows
     root_q: int  # joint_q column of the free root joint, -1 for a fixed root
     root_qd: int  # its joint_qd column, -1 for a fixed root
@@ -109,36 +90,6 @@ class _ObjLayout:
     ball_joints: list[int]  # [K] their Newton joint indices (world 0)
     ball_cones: list[float | None]  # [K] their cone limits (rad), None = unlimited
     dof_qd: torch.Tensor  # [D] joint_qd column of every DoF
-    actuated: bool
-    kp: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [D] gains as used by the control mode
-    kd: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    @property
-    def num_dofs(self) -> int:
-        return len(self.dof_qd)
-
-    @property
-    def num_bodies(self) -> int:
-        return self.bodies.stop - self.bodies.start
-
-
-_STATE_SHAPES = {
-    "body_pos": 3, "body_rot": 4, "body_vel": 3, "body_ang_vel": 3, "contact_forces": 3, "ground_contact_forces": 3,
-}  # fmt: skip
-
-
-class _ObjState:
-    """One object's getter tensors: body_* / *contact_forces [N, B, 3|4], dof_pos/dof_vel/dof_forces [N, D];
-    root_* are views of body 0 (the root is body 0)."""
-
-    def __init__(self, n: int, b: int, d: int, device: torch.device):
-        self.t = {k: torch.zeros(n, b, w, device=device) for k, w in _STATE_SHAPES.items()}
-        self.t["body_rot"][..., 3] = 1.0
-        for k in ("dof_pos", "dof_vel", "dof_forces"):
-            self.t[k] = torch.zeros(n, d, device=device)
-        for root, body in (("root_pos", "body_pos"), ("root_rot", "body_rot"), ("root_vel", "body_vel"),
-                           ("root_ang_vel", "body_ang_vel")):  # fmt: skip
-            self.t[root] = self.t[body][:, 0]
 
 
 # ---------------------------------------------------------------------------------------------- engine
@@ -147,11 +98,9 @@ class NewtonEngine(Engine):
 
     def __init__(self, config: EngineConfig, num_envs: int, device: torch.device | str, visualize: bool = False):
         super().__init__(config, num_envs, device, visualize)
-        self._kin_cache: dict[str, KinCharModel] = {}
         # warp runs on CUDA only when the torch device is CUDA; kernels otherwise compile for the CPU
         self._wp_device = "cuda:0" if self._device.type == "cuda" else "cpu"
         self.model = None
-        self._sim_time = 0.0
         self._mirror: MujocoMirror | None = None  # mujoco_view's MuJoCo copy of the scene, built on first use
 
     def get_name(self) -> str:
@@ -160,27 +109,6 @@ class NewtonEngine(Engine):
     # ------------------------------------------------------------------ creation
     def _sim_initialized(self) -> bool:
         return self.model is not None
-
-    def create_obj(
-        self,
-        env_id: int,
-        obj_type: ObjType,
-        asset_file: str,
-        name: str,
-        is_visual: bool = False,
-        enable_self_collisions: bool = True,
-        fix_root: bool = False,
-        start_pos: np.ndarray | None = None,
-        start_rot: np.ndarray | None = None,
-        color: np.ndarray | None = None,
-        disable_motors: bool = False,
-    ) -> int:
-        path = self._check_new_obj(env_id, asset_file)
-        rgb = None if color is None else tuple(float(c) for c in np.asarray(color).ravel())
-        rec = _ObjRecord(
-            ObjType(obj_type), path, name, is_visual, enable_self_collisions, fix_root, disable_motors, rgb
-        )
-        return self._add_obj(env_id, rec, start_pos, start_rot)
 
     def initialize_sim(self) -> None:
         objs = self._check_env_objects()
@@ -193,7 +121,8 @@ class NewtonEngine(Engine):
         self._enable_ball_limits()
         self._bind_state()
         self._place_start_poses()
-        self._states = [_ObjState(self._num_envs, lay.num_bodies, lay.num_dofs, self._device) for lay in self._layouts]
+        n = self._num_envs
+        self._states = [ObjState.zeros(n, lay.num_bodies, lay.num_dofs, self._device) for lay in self._layouts]
         self._cmd = [torch.zeros(self._num_envs, lay.num_dofs, device=self._device) for lay in self._layouts]
         self._tau = [torch.zeros(self._num_envs, lay.num_dofs, device=self._device) for lay in self._layouts]
         self._gains = [self._torch_gains(lay) for lay in self._layouts]
@@ -214,18 +143,13 @@ class NewtonEngine(Engine):
                 rows = [to_mj[int(c)] for c in lay.dof_qd]
                 self._warn_explicit_damping(lay.kin, lay.kd, full[rows, rows])
 
-    def _kin_model(self, asset_file: str) -> KinCharModel:
-        if asset_file not in self._kin_cache:
-            self._kin_cache[asset_file] = load_char_model(asset_file)
-        return self._kin_cache[asset_file]
-
     def _new_builder(self) -> newton.ModelBuilder:
         b = newton.ModelBuilder()
         newton.solvers.SolverMuJoCo.register_custom_attributes(b)
         b.default_shape_cfg.mu = 1.0  # the MuJoCo engine's floor friction
         return b
 
-    def _object_builder(self, rec: _ObjRecord, pose: tuple[np.ndarray, np.ndarray]) -> newton.ModelBuilder:
+    def _object_builder(self, rec: ObjRecord, pose: tuple[np.ndarray, np.ndarray]) -> newton.ModelBuilder:
         b = self._new_builder()
         pos, rot = pose
         b.add_mjcf(
@@ -243,7 +167,7 @@ class NewtonEngine(Engine):
             b.shape_flags = [int(f) & ~collide for f in b.shape_flags]
         return b
 
-    def _build_model(self, objs: list[_ObjRecord]):
+    def _build_model(self, objs: list[ObjRecord]):
         scene = self._new_builder()
         scene.add_ground_plane(cfg=newton.ModelBuilder.ShapeConfig(mu=1.0, restitution=0.0), label=GROUND_LABEL)
         cache: dict[tuple, newton.ModelBuilder] = {}
@@ -259,7 +183,7 @@ class NewtonEngine(Engine):
             scene.end_world()
         return scene.finalize(device=self._wp_device, requires_grad=False)
 
-    def _build_layouts(self, objs: list[_ObjRecord]) -> list[_ObjLayout]:
+    def _build_layouts(self, objs: list[ObjRecord]) -> list[_ObjLayout]:
         m, n = self.model, self._num_envs
         self._bodies_per_world = m.body_count // n
         self._q_per_world = m.joint_coord_count // n
@@ -277,8 +201,6 @@ class NewtonEngine(Engine):
                 raise MimicKitError(f"{rec.asset_file}: Newton body order {names} differs from {kin.body_names}")
             hinge_cols, hinge_q, ball_cols, ball_q, ball_qd, ball_joints, ball_cones = [], [], [], [], [], [], []
             dof_qd = []
-            has_dofs = kin.get_dof_size() > 0
-            actuated = self._config.control_mode != ControlMode.none and not rec.disable_motors and has_dofs
             for joint in kin.joints[1:]:
                 if joint.dof_dim == 0:
                     continue
@@ -309,22 +231,12 @@ class NewtonEngine(Engine):
                 ball_joints=ball_joints,
                 ball_cones=ball_cones,
                 dof_qd=torch.tensor(dof_qd, dtype=torch.long),
-                actuated=actuated,
+                actuated=has_motors(self._config.control_mode, rec, kin),
             )
-            lay.kp, lay.kd = self._mode_gains(lay)
+            lay.kp, lay.kd = mode_gains(self._config.control_mode, kin, lay.actuated)
             layouts.append(lay)
             body0 += nb
         return layouts
-
-    def _mode_gains(self, lay: _ObjLayout) -> tuple[np.ndarray, np.ndarray]:
-        """The (kp, kd) [D] the control mode uses, as in the MuJoCo engine."""
-        kp, kd = lay.kin.dof_array("kp"), lay.kin.dof_array("kd")
-        mode = self._config.control_mode
-        if not lay.actuated or mode in (ControlMode.torque, ControlMode.none):
-            return np.zeros_like(kp), np.zeros_like(kd)
-        if mode == ControlMode.vel:
-            return np.zeros_like(kp), kd
-        return kp, kd
 
     def _target_mode(self, lay: _ObjLayout) -> int:
         mode = self._config.control_mode
@@ -335,7 +247,7 @@ class NewtonEngine(Engine):
             ControlMode.vel: newton.JointTargetMode.VELOCITY,
         }.get(mode, newton.JointTargetMode.EFFORT))  # fmt: skip
 
-    def _set_gains(self, objs: list[_ObjRecord]) -> None:
+    def _set_gains(self, objs: list[ObjRecord]) -> None:
         """Joint-target gains, modes and effort limits per DoF in every world; passive springs off."""
         m = self.model
         ke, kd = m.joint_target_ke.numpy(), m.joint_target_kd.numpy()
@@ -392,7 +304,7 @@ class NewtonEngine(Engine):
         kp, kd, limit = (torch.as_tensor(a, dtype=torch.float32, device=self._device) for a in arrays)
         return kp, kd, limit
 
-    def _float_ghosts(self, objs: list[_ObjRecord]) -> None:
+    def _float_ghosts(self, objs: list[ObjRecord]) -> None:
         """Visual objects get MuJoCo gravity compensation (as in the MuJoCo engine): a ghost stays where the
         env poses it instead of dropping during each control step."""
         gravcomp = self.model.mujoco.gravcomp.numpy()
@@ -493,9 +405,6 @@ class NewtonEngine(Engine):
             self._tau[obj_id][:] = torch.maximum(torch.minimum(value, limit), -limit)
             self._write_joint_f(lay, self._tau[obj_id])
 
-    def _obj_kin(self, obj_id: int) -> KinCharModel:
-        return self._layouts[obj_id].kin
-
     def step(self, concurrent: Callable[[], None] | None = None) -> None:
         self._sync()
         dt = self.get_sim_timestep()
@@ -575,7 +484,7 @@ class NewtonEngine(Engine):
         """Recompute every object's getter tensors from the warp state (in place: the tensors stay live)."""
         self._dirty = False
         for lay, st in zip(self._layouts, self._states, strict=True):
-            t, b = st.t, lay.bodies
+            t, b = st.tensors, lay.bodies
             t["body_pos"].copy_(self._bq[:, b, :3])
             t["body_rot"].copy_(self._bq[:, b, 3:])
             t["body_vel"].copy_(self._bqd[:, b, :3])
@@ -587,8 +496,8 @@ class NewtonEngine(Engine):
             ground = wp.to_torch(self.sensor.force_matrix)[:, 0]  # [rows, 3]: the ground is counterpart 0
             total = wp.to_torch(self.sensor.total_force)
             for o, rows in self._sensor_rows:
-                self._states[o].t["ground_contact_forces"].copy_(ground[rows])
-                self._states[o].t["contact_forces"].copy_(total[rows])
+                self._states[o].tensors["ground_contact_forces"].copy_(ground[rows])
+                self._states[o].tensors["contact_forces"].copy_(total[rows])
 
     # ------------------------------------------------------------------ viewers
     def mujoco_view(self, env_id: int = 0) -> MujocoView:
@@ -606,32 +515,14 @@ class NewtonEngine(Engine):
         return self._mirror.view(i)
 
     # ------------------------------------------------------------------ getters
-    def _get(self, obj_id: int, key: str) -> torch.Tensor:
+    def _state_tensor(self, obj_id: int, name: str) -> torch.Tensor:
         self._sync()
-        return self._states[obj_id].t[key]
-
-    def get_root_pos(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "root_pos")
-
-    def get_root_rot(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "root_rot")
-
-    def get_root_vel(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "root_vel")
-
-    def get_root_ang_vel(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "root_ang_vel")
-
-    def get_dof_pos(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "dof_pos")
-
-    def get_dof_vel(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "dof_vel")
+        return self._states[obj_id].tensors[name]
 
     def get_dof_forces(self, obj_id: int) -> torch.Tensor:
         """[N, D] generalized actuator forces of the last substep (MuJoCo's qfrc_actuator), or the explicit
         joint torques applied in torque / pd_explicit mode; ball joints' in their child frame."""
-        lay, t = self._layouts[obj_id], self._get(obj_id, "dof_forces")
+        lay, t = self._layouts[obj_id], self._state_tensor(obj_id, "dof_forces")
         if self._config.control_mode in (ControlMode.torque, ControlMode.pd_explicit):
             t.copy_(self._tau[obj_id])
             return t
@@ -639,24 +530,6 @@ class NewtonEngine(Engine):
         if len(lay.ball_cols):  # Newton reports them in the parent frame, like joint_f
             t[:, lay.ball_cols] = tu.quat_rotate_inverse(self._ball_rot(lay), self._qfrc[:, lay.ball_qd])
         return t
-
-    def get_body_pos(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "body_pos")
-
-    def get_body_rot(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "body_rot")
-
-    def get_body_vel(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "body_vel")
-
-    def get_body_ang_vel(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "body_ang_vel")
-
-    def get_contact_forces(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "contact_forces")
-
-    def get_ground_contact_forces(self, obj_id: int) -> torch.Tensor:
-        return self._get(obj_id, "ground_contact_forces")
 
     # ------------------------------------------------------------------ setters
     def _ids(self, env_ids: EnvIds) -> torch.Tensor:
@@ -714,37 +587,8 @@ class NewtonEngine(Engine):
         self._dirty = True
 
     # ------------------------------------------------------------------ queries
-    def get_sim_time(self) -> float:
-        return self._sim_time
-
     def get_gravity(self) -> np.ndarray:
         return np.asarray(self.model.gravity.numpy(), dtype=np.float64).reshape(-1, 3)[0].copy()
-
-    def get_objs_per_env(self) -> int:
-        return len(self._env_objs[0]) if self._env_objs else 0
-
-    def get_obj_num_dofs(self, obj_id: int) -> int:
-        return self._layouts[obj_id].num_dofs
-
-    def get_obj_num_bodies(self, obj_id: int) -> int:
-        return self._layouts[obj_id].num_bodies
-
-    def get_obj_body_names(self, obj_id: int) -> list[str]:
-        return self._layouts[obj_id].kin.get_body_names()
-
-    def find_obj_body_id(self, obj_id: int, name: str) -> int:
-        return self._layouts[obj_id].kin.get_body_id(name)
-
-    def get_obj_torque_limits(self, env_id: int, obj_id: int) -> np.ndarray:
-        return self._layouts[obj_id].kin.dof_array("torque_limit")
-
-    def get_obj_dof_limits(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
-        low, high = self._layouts[obj_id].kin.dof_limits()
-        return low.copy(), high.copy()
-
-    def get_obj_pd_gains(self, env_id: int, obj_id: int) -> tuple[np.ndarray, np.ndarray]:
-        lay = self._layouts[obj_id]
-        return lay.kp.copy(), lay.kd.copy()
 
     def calc_obj_mass(self, env_id: int, obj_id: int) -> float:
         lay = self._layouts[obj_id]
