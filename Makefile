@@ -29,7 +29,14 @@ studio: setup
 browser:
 	@command -v chromium >/dev/null || { apt-get update -q && apt-get install -y -q chromium; }
 
-test: setup browser
+# Ray for the Ray executor's tests (tests/studio/test_ray_executor.py start a local Ray head).
+RAY_STAMP := $(VENV)/.installed-ray
+
+$(RAY_STAMP): $(STAMP)
+	$(BIN)/pip install -q -e ".[dev,ray]"
+	touch $(RAY_STAMP)
+
+test: setup $(RAY_STAMP) browser
 	$(BIN)/python -m pytest -q
 
 # The fast subset (under a minute): no subprocess, server, browser, or test that trains to an improvement or

@@ -32,6 +32,7 @@ from studio.api import library as library_api
 from studio.api import runs as runs_api
 from studio.api import scene as scene_api
 from studio.api import stream as stream_api
+from studio.api import sweeps as sweeps_api
 from studio.clip_pose import pose_clip
 from studio.library import Library
 from studio.player import Player
@@ -169,7 +170,7 @@ def create_app(settings: Settings) -> FastAPI:
     hosts = HostPolicy(settings.host, settings.allowed_hosts)
     app.add_middleware(RequestGuard, hosts=hosts, token=settings.token if settings.needs_token else None)
 
-    for module in (library_api, scene_api, runs_api, checkpoints_api, compare_api, stream_api, evals_api):
+    for module in (library_api, scene_api, runs_api, checkpoints_api, compare_api, stream_api, evals_api, sweeps_api):
         app.include_router(module.router, prefix="/api")
     _add_error_handlers(app)
     close_proxy = add_scene_proxy(app, lambda: studio.viser_port)

@@ -7,16 +7,20 @@ It prints one URL: the dashboard's (with the token, when one is needed).
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import shlex
 import socket
 import sys
+import urllib.error
+import urllib.request
 import warnings
 from pathlib import Path
 
 import uvicorn
 
 from mimickit.util.errors import MimicKitError
+from studio.executors.base import EXECUTORS
 from studio.security import new_token
 from studio.settings import DEFAULT_TRAINER, DEMO_CLIP, Settings, parse_trainer
 
@@ -49,6 +53,18 @@ def build_parser() -> argparse.ArgumentParser:
         default=shlex.join(DEFAULT_TRAINER),
         help="the command a run starts, before its --arg_file ... arguments (default: mimickit train)",
     )
+    serve.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="local",
+        help="what runs the trainers: local subprocesses (the default) or jobs on a Ray cluster",
+    )
+    serve.add_argument(
+        "--ray-address",
+        default="http://127.0.0.1:8265",
+        help="the Ray cluster's dashboard address (Job Submission API), for --executor ray",
+    )
+    add_sweep_parser(sub)
     replay = sub.add_parser(
         "export-replay", help="write a clip or a policy rollout as one HTML file that plays offline in a browser"
     )
@@ -63,6 +79,62 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--data-dir", type=Path, help="a MimicKit data folder for data/... paths")
     replay.add_argument("--out", required=True, help="F.html (standalone page) or F.viser (viser recording)")
     return parser
+
+
+def add_sweep_parser(sub: argparse._SubParsersAction) -> None:
+    sweep = sub.add_parser(
+        "sweep", help="queue one run per combination of values on a running studio (POST /api/sweeps)"
+    )
+    sweep.add_argument("arg_file", help="the runs' arg file: args/x.txt, data/args/x.txt or an absolute path")
+    sweep.add_argument(
+        "--values",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2,...",
+        help="a MimicKit argument and its values (repeat for a grid), e.g. rand_seed=0,1,2",
+    )
+    sweep.add_argument("--dataset", help="a dataset yaml: one run per clip, as motion_file")
+    sweep.add_argument("--name", help="the sweep's name (its runs are named after it and their values)")
+    sweep.add_argument("--num_envs", type=int)
+    sweep.add_argument("--max_samples", type=int)
+    sweep.add_argument("--num-cpus", type=float, help="CPUs each run reserves on a Ray cluster (default 1)")
+    sweep.add_argument("--num-gpus", type=float, help="GPUs each run reserves on a Ray cluster")
+    sweep.add_argument("--url", default="http://127.0.0.1:8000/", help="the studio's address")
+    sweep.add_argument("--token", help="the studio's access token (off loopback)")
+
+
+def sweep_body(args: argparse.Namespace) -> dict[str, object]:
+    """The POST /api/sweeps body of `mimickit-studio sweep ...`."""
+    values: dict[str, list[str]] = {}
+    for item in args.values:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip() or not text.strip():
+            raise MimicKitError(f"--values {item!r}: write KEY=V1,V2,... (e.g. rand_seed=0,1,2)")
+        values.setdefault(key.strip().removeprefix("--"), []).extend(v.strip() for v in text.split(","))
+    body = {"arg_file": args.arg_file, "values": values, "dataset": args.dataset, "name": args.name}
+    body |= {"num_envs": args.num_envs, "max_samples": args.max_samples}
+    body |= {"num_cpus": args.num_cpus, "num_gpus": args.num_gpus}
+    return {k: v for k, v in body.items() if v is not None}
+
+
+def sweep(args: argparse.Namespace) -> int:
+    headers = {"Content-Type": "application/json", "X-Studio-Request": "1"}
+    if args.token:
+        headers["Authorization"] = f"Bearer {args.token}"
+    url = args.url.rstrip("/") + "/api/sweeps"
+    request = urllib.request.Request(url, json.dumps(sweep_body(args)).encode(), headers, method="POST")
+    try:
+        with urllib.request.urlopen(request, timeout=60) as response:
+            result = json.load(response)
+    except urllib.error.HTTPError as e:
+        detail = json.loads(e.read() or b"{}").get("detail", e.reason)
+        raise MimicKitError(f"the studio refused the sweep ({e.code}): {detail}") from None
+    except (urllib.error.URLError, OSError) as e:
+        raise MimicKitError(f"cannot reach the studio at {args.url}: {getattr(e, 'reason', e)}") from None
+    print(f"sweep {result['id']} ({result['name']}): {len(result['runs'])} runs queued")
+    for run in result["runs"]:
+        print(f"  run {run['id']}: {run['name']} -> {run['out_dir']}")
+    return 0
 
 
 def export_replay(args: argparse.Namespace) -> int:
@@ -121,6 +193,8 @@ def serve(args: argparse.Namespace) -> int:
         allowed_hosts=[h.strip() for h in args.allowed_hosts.split(",") if h.strip()],
         max_concurrent_runs=max(1, args.max_concurrent_runs),
         trainer=parse_trainer(args.trainer),
+        executor=args.executor,
+        ray_address=args.ray_address,
     )
     if args.runs_dir:
         settings.runs_dir = args.runs_dir
@@ -160,8 +234,9 @@ def serve(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    commands = {"serve": serve, "export-replay": export_replay, "sweep": sweep}
     try:
-        return export_replay(args) if args.command == "export-replay" else serve(args)
+        return commands[args.command](args)
     except MimicKitError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

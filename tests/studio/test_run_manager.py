@@ -115,6 +115,30 @@ def test_restart_adopts_a_live_trainer_and_can_stop_it(tmp_path: Path) -> None:
         manager.close()
 
 
+def test_a_sweep_groups_its_runs(tmp_path: Path) -> None:
+    reg = Registry(tmp_path / "registry.sqlite")
+    sweep = reg.create_sweep("seeds", {"values": {"rand_seed": [1, 2]}})
+    runs = [reg.create(f"s{i}", {"arg_file": "x"}, lambda i: str(tmp_path / f"{i}"), sweep_id=sweep) for i in (1, 2)]
+    reg.create("alone", {"arg_file": "x"}, lambda i: str(tmp_path / f"{i}"))
+    (listed,) = reg.sweeps()
+    assert (listed["id"], listed["name"], listed["run_ids"]) == (sweep, "seeds", [r.id for r in runs])
+    assert listed["spec"] == {"values": {"rand_seed": [1, 2]}}
+
+
+def test_a_run_that_cannot_start_fails_with_the_executors_line(tmp_path: Path) -> None:
+    settings = settings_for(tmp_path)
+    settings.trainer = [str(tmp_path / "no-such-trainer")]
+    reg = Registry(tmp_path / "registry.sqlite")
+    manager = RunManager(settings, reg)
+    try:
+        run = manager.submit("x", {"arg_file": str(write_arg_file(tmp_path, "a"))})
+        failed = wait_for(lambda: (r := reg.get(run.id)).status == RunStatus.FAILED and r, 10, "the run to fail")
+        assert failed.reason.startswith("local executor could not start it: [Errno 2] No such file")
+        assert "could not start" in RunFolder(failed.out_dir).console_file.read_text()
+    finally:
+        manager.close()
+
+
 def test_an_older_registry_opens_with_its_rows(tmp_path: Path) -> None:
     """A registry written before runs had a reason column and ended "succeeded"."""
     path = tmp_path / "registry.sqlite"
@@ -132,7 +156,9 @@ def test_an_older_registry_opens_with_its_rows(tmp_path: Path) -> None:
     reg = Registry(path)
     run = reg.get(1)
     assert (run.status, run.reason, run.exit_code) == (RunStatus.FINISHED, None, 0)
+    assert (run.executor, run.job_id, run.sweep_id) == ("local", None, None)  # columns added since
     assert reg.update(1, reason="why").reason == "why"
+    assert reg.sweeps() == []
 
 
 def test_metrics_rows_reach_a_browser_as_json_it_parses(tmp_path: Path) -> None:

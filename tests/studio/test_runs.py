@@ -271,3 +271,36 @@ def test_a_typo_in_the_arg_file_fails_the_run(studio: StudioProcess) -> None:
     failed = wait_status(studio, launch(studio, "typo")["id"], "failed")
     assert failed["exit_code"] == 2 and not (Path(failed["out_dir"]) / "metrics.jsonl").exists()
     assert "unknown argument --num_env" in failed["reason"] and "(did you mean --num_envs?)" in failed["reason"]
+
+
+def test_a_sweep_queues_one_run_per_combination_in_one_group(studio: StudioProcess) -> None:
+    arg = str(studio.runs_dir / "args" / "short.txt")
+    values = {"rand_seed": [5, 6], "num_envs": [2], "save_int_models": [True]}
+    r = studio.post("/api/sweeps", {"arg_file": arg, "values": values, "name": "two seeds"})
+    assert r.status_code == 201, r.text
+    sweep = r.json()
+    names = [run["name"] for run in sweep["runs"]]
+    assert names == [f"two seeds rand_seed={s} num_envs=2 save_int_models=True" for s in (5, 6)]
+    runs = [wait_status(studio, run["id"], "finished", timeout=120.0) for run in sweep["runs"]]
+    assert [(r["summary"]["seed"], r["summary"]["num_envs"]) for r in runs] == [(5, 2), (6, 2)]
+    assert all(r["command"][-2:] == ["--save_int_models", "true"] for r in runs)  # any --key reaches the trainer
+    assert {r["sweep_id"] for r in runs} == {sweep["id"]} and {r["executor"] for r in runs} == {"local"}
+    listed = studio.get(f"/api/sweeps/{sweep['id']}").json()
+    assert listed["run_ids"] == [r["id"] for r in runs] and listed["spec"]["values"] == values
+
+
+@pytest.mark.parametrize(
+    ("values", "says"),
+    [
+        ({"out_dir": ["/tmp/x"]}, "values: unknown argument 'out_dir'"),
+        ({"num_env": [2]}, "did you mean 'num_envs'?"),
+        ({"rand_seed": []}, "values.rand_seed: give at least one value"),
+        ({"num_envs": [0]}, "values: num_envs: Input should be greater than 0"),
+        ({"rand_seed": list(range(17)), "num_envs": list(range(1, 17))}, "the sweep makes 272 runs; at most 256"),
+    ],
+)
+def test_a_bad_sweep_is_one_line_and_queues_nothing(studio: StudioProcess, values: dict, says: str) -> None:
+    before = len(studio.get("/api/runs").json())
+    r = studio.post("/api/sweeps", {"arg_file": str(studio.runs_dir / "args" / "short.txt"), "values": values})
+    assert r.status_code == 400 and says in r.json()["detail"], r.text
+    assert len(studio.get("/api/runs").json()) == before
