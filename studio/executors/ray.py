@@ -16,6 +16,7 @@ from __future__ import annotations
 import shlex
 import time
 
+from mimickit.util.errors import MimicKitError
 from studio.executors.base import Job, JobState, Launch
 
 STOP_WAIT_ENV = "RAY_JOB_STOP_WAIT_TIME_S"  # read by Ray's job supervisor (ray/dashboard/modules/job)
@@ -29,10 +30,14 @@ class RayExecutor:
         try:
             from ray.job_submission import JobSubmissionClient
         except ImportError:
-            raise RuntimeError("--executor ray needs Ray: pip install 'mimickit-studio[ray]'") from None
+            raise MimicKitError("--executor ray needs Ray: pip install -e '.[ray]'") from None
         self.address = address
         self.stop_timeout_s = stop_timeout_s
-        self.client = JobSubmissionClient(address)  # checks the address: ConnectionError when unreachable
+        try:
+            self.client = JobSubmissionClient(address)  # asks the dashboard for its version
+        except Exception as e:  # ConnectionError, a refused or odd reply: one line, not Ray's traceback
+            first = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+            raise MimicKitError(f"--ray-address {address}: no Ray dashboard answers there ({first})") from None
         self._running_since: dict[str, float] = {}  # job id -> when this server first saw it RUNNING
 
     def submit(self, launch: Launch) -> str:

@@ -16,7 +16,7 @@ import pytest
 
 from mimickit.run_folder import RunFolder, is_event_row
 from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for, write_arg_file
-from tests.studio.ray_head import local_ray_head
+from tests.studio.ray_head import free_port, local_ray_head
 
 ray = pytest.importorskip("ray", reason="the Ray tests need the ray extra: pip install -e '.[ray]'")
 pytestmark = pytest.mark.integration
@@ -144,3 +144,12 @@ def test_a_sweep_of_four_runs_runs_two_at_a_time(ray_head: str, tmp_path: Path) 
         assert at_once == RAY_CPUS, spans  # never a third (Ray queued it), and two did overlap
     finally:
         studio.stop()
+
+
+def test_serve_with_no_ray_dashboard_there_is_one_line(tmp_path: Path) -> None:
+    argv = [sys.executable, "-m", "studio.cli", "serve", "--port", "0", "--clip", "none", "--runs-dir", str(tmp_path)]
+    argv += ["--executor", "ray", "--ray-address", f"http://127.0.0.1:{free_port()}"]
+    out = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and out.stdout == "", out
+    assert out.stderr.startswith("error: --ray-address http://127.0.0.1:") and "no Ray dashboard answers" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1, out.stderr
