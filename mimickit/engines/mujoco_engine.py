@@ -1,11 +1,7 @@
 """The MuJoCo (CPU) engine: one compiled MjModel shared by all envs, one MjData per env.
 
-Build: every object's MJCF is loaded with MjSpec, adapted (3-hinge bodies → one ball joint, passive
-stiffness/damping zeroed, its own motors dropped, a free root joint or a mocap root for `fix_root`) and
-attached under its own name prefix to a scene with a floor. The scene gets one actuator per DoF whose
-gains follow the control mode, four state sensors per body (frame position and orientation, COM linear
-and angular velocity, world frame) and two contact sensors per body (all contacts, floor contacts): MuJoCo
-sums `mj_contactForce` per body in C, in the world frame, instead of a Python loop over contacts.
+Build (`mujoco_scene.build_scene`): every object's MJCF adapted and attached under its own name prefix to
+a scene with a floor, one actuator per DoF, state and contact sensors per body.
 
 Step: worker threads (one per core) each step a contiguous chunk of envs with `mj_step(m, d, n)`, which
 releases the GIL: first `substeps - 1` steps with sensors disabled, then the last one with them, then
@@ -26,10 +22,6 @@ velocity in world frame, angular velocity in body frame); the framework uses (ce
 velocity, angular velocity), both world frame. Ball-joint qpos quaternions (w first) are exposed as
 exp-maps; ball qvel is already the local angular velocity.
 
-Ball-joint limits (`ball_joint_limits`): "cone" limits each ball joint's rotation angle to the largest
-|bound| of its hinges' ranges (MuJoCo's ball limit, the same one the Newton engine sets), "none" leaves
-it unlimited; the per-axis ranges bound the actions either way (`get_obj_dof_limits`).
-
 pd_explicit: τ = kp (q* − q) − kd q̇ per actuator, recomputed before every substep between `mj_step1`
 (which computes the actuator lengths and velocities of the current state) and `mj_step2`. An actuator's
 length is the hinge angle or, for a ball joint with gear e_i, exp-map component i; its velocity is q̇ or
@@ -38,12 +30,10 @@ the local angular velocity ω_i: the law the pos-mode actuators apply, with the 
 
 from __future__ import annotations
 
-import math
 import os
 import queue
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -51,52 +41,18 @@ import mujoco
 import numpy as np
 import torch
 
-from mimickit.anim.kin_char_model import JointType, KinCharModel
-from mimickit.anim.mjcf_loader import compile_spec, load_mjcf_spec
-from mimickit.engines.engine import (
-    ControlMode,
-    Engine,
-    EngineConfig,
-    EnvIds,
-    MujocoView,
-    ViewObject,
-    ball_cone_angle,
-    has_motors,
-    mode_gains,
-)
-from mimickit.engines.engine_records import ObjLayout, ObjRecord, ObjState, state_shapes
+from mimickit.engines.engine import ControlMode, Engine, EngineConfig, EnvIds, MujocoView, ViewObject
+from mimickit.engines.engine_records import ObjState, state_shapes
+from mimickit.engines.mujoco_scene import MjObjLayout, build_scene
 from mimickit.util import torch_util as tu
+from mimickit.util.np_rotation import cross, quat_rotate_wxyz, quat_wxyz_canonical, quat_wxyz_to_exp_map
 
 if TYPE_CHECKING:
     from mimickit.engines.bench_util import RawRollout
 
-FLOOR_NAME = "floor"
-
-_INTEGRATORS = {
-    "euler": mujoco.mjtIntegrator.mjINT_EULER,
-    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
-    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
-    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
-}
-
-# Contact sensor parameters (intprm): report the force only, summed over matching contacts into one
-# world-frame "net force" (reduce mode 3 = netforce), one slot.
-_CONTACT_SENSOR_INTPRM = [1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE), 3, 1]
-
 # MjData fields gathered into stacked [N, ...] arrays after every step: the body states are sensors.
 # (Actuator forces are read only when asked for: the envs never do.)
 _GATHERED_FIELDS = ("qpos", "qvel", "sensordata")
-
-# Per body, the sensors whose readings are its state row (name suffix, type, frame; 13 values): the body
-# frame's position and orientation (w first), the centre of mass's linear velocity (mjOBJ_BODY is the
-# inertial frame) and the angular velocity, both in the world frame.
-_BODY_SENSORS = (
-    ("pos", mujoco.mjtSensor.mjSENS_FRAMEPOS, mujoco.mjtObj.mjOBJ_XBODY),
-    ("quat", mujoco.mjtSensor.mjSENS_FRAMEQUAT, mujoco.mjtObj.mjOBJ_XBODY),
-    ("linvel", mujoco.mjtSensor.mjSENS_FRAMELINVEL, mujoco.mjtObj.mjOBJ_BODY),
-    ("angvel", mujoco.mjtSensor.mjSENS_FRAMEANGVEL, mujoco.mjtObj.mjOBJ_BODY),
-)
-_WXYZ_TO_XYZW_COLUMNS = [0, 1, 2, 4, 5, 6, 3, 7, 8, 9, 10, 11, 12]  # a body's 13 readings, quaternion w last
 
 GUIDED_SPLIT = 2
 """Each chunk of the step queue takes 1/(GUIDED_SPLIT × threads) of the envs still unassigned (at least
@@ -104,31 +60,7 @@ one): big chunks first, single envs last, so the threads finish within about one
 other (fixed chunks of 16 envs left one core idle ~2 ms per control step at 256 envs, measured)."""
 
 
-# ---------------------------------------------------------------------------------------------- records
-@dataclass(kw_only=True)
-class _ObjLayout(ObjLayout):
-    """Where an object lives in the compiled model. Index arrays address qpos/qvel/body/sensor columns."""
-
-    prefix: str
-    body_ids: np.ndarray  # [B] MuJoCo body ids in kinematic DFS order
-    root_qpos: int  # qpos address of the free root joint, -1 for a mocap (fixed) root
-    root_qvel: int
-    mocap_id: int  # -1 for a free root
-    root_ipos: np.ndarray  # [3] centre of mass of the root body in its own frame
-    dof_qvel: np.ndarray  # [D] qvel index of every DoF
-    hinge_cols: np.ndarray  # [H] DoF columns of hinge joints
-    hinge_qpos: np.ndarray  # [H] their qpos addresses
-    ball_cols: np.ndarray  # [K, 3] DoF columns of ball joints (exp-map components)
-    ball_qpos: np.ndarray  # [K, 4] their quaternion qpos addresses (w first)
-    hinge_joints: np.ndarray  # [H] joint index (0 .. J-2, root excluded) of each hinge
-    hinge_axes: np.ndarray  # [H, 3] unit hinge axes in the joint frame
-    ball_joints: np.ndarray  # [K] joint index of each ball joint
-    act_ids: np.ndarray  # [D] actuator per DoF, empty without motors
-    body_adr: np.ndarray  # [B, 13] sensordata columns: position, rotation (x y z w), COM velocity, angular velocity
-    contact_adr: np.ndarray  # [B * 3] sensordata columns: total contact force per body (on the sensor's body1)
-    ground_adr: np.ndarray  # [B * 3] sensordata columns: floor contact force per body
-
-
+# ---------------------------------------------------------------------------------------------- state
 class _ObjState(ObjState):
     """One object's state buffers. The refresh writes float32 numpy arrays `host[name]` (`state_shapes`,
     joint_rot included); the getters return the torch tensors `tensors[name]`, which share memory with
@@ -153,170 +85,6 @@ class _ObjState(ObjState):
                 t[torch.from_numpy(rows).to(t.device)] = torch.from_numpy(a[rows]).to(t.device)
 
 
-# ---------------------------------------------------------------------------------------------- scene build
-def _zero_like(value: object) -> object:
-    """0 in the shape MuJoCo uses for this attribute (scalar in older versions, array in 4.x)."""
-    return np.zeros_like(value) if isinstance(value, np.ndarray) else 0.0
-
-
-def _adapt_object_spec(
-    spec: mujoco.MjSpec, rec: ObjRecord, kin: KinCharModel, limit_balls: bool
-) -> dict[str, list[float]]:
-    """Make an asset's spec simulation-ready in place; returns per-axis armature of each new ball joint.
-    With `limit_balls` every ball joint gets its cone limit (`ball_cone_angle`), else none."""
-    for elements in (spec.actuators, spec.sensors, spec.keys):  # own motors go; keyframes no longer fit
-        for e in list(elements):
-            spec.delete(e)
-    for geom in list(spec.worldbody.geoms):  # the asset's own floor, if any: the scene has one
-        spec.delete(geom)
-    root = spec.worldbody.first_body()
-    for j in list(root.joints):
-        spec.delete(j)
-    # The root pose is state (start_pos / start_rot per env), not part of the shared model.
-    root.pos = [0.0, 0.0, 0.0]
-    root.quat = [1.0, 0.0, 0.0, 0.0]
-    if rec.fix_root:
-        root.mocap = True  # welded to the world, yet movable per env through MjData.mocap_pos/quat
-    else:
-        root.add_freejoint()
-
-    ball_armature: dict[str, list[float]] = {}
-    for joint in kin.joints[1:]:
-        body = spec.body(kin.body_names[joint.body_id])
-        if joint.type == JointType.SPHERICAL:
-            if len(body.joints) == 3:
-                ball_armature[joint.name] = [float(spec.joint(n).armature) for n in joint.mjcf_joints]
-                _hinges_to_ball(spec, body, joint.name, ball_armature[joint.name])
-            cone = ball_cone_angle(joint.low, joint.high) if limit_balls else None
-            _set_ball_limit(body.joints[0], cone, spec.compiler.degree)
-        for j in body.joints:  # the gains move into actuators: no passive springs left
-            j.stiffness = _zero_like(j.stiffness)
-            j.damping = _zero_like(j.damping)
-
-    for body in spec.bodies[1:]:
-        if rec.is_visual:
-            body.gravcomp = 1.0  # a ghost floats where the env puts it instead of falling between resets
-        for geom in body.geoms:
-            if rec.is_visual:
-                geom.contype, geom.conaffinity = 0, 0
-            if rec.color is not None:
-                geom.rgba = list(rec.color[:3]) + [rec.color[3] if len(rec.color) > 3 else 1.0]
-    return ball_armature
-
-
-def _hinges_to_ball(spec: mujoco.MjSpec, body: mujoco.MjsBody, name: str, armature: list[float]) -> None:
-    """Replace a body's x/y/z hinge triplet by one ball joint (as Newton's MJCF import does); its limit is
-    set by `_set_ball_limit`."""
-    hinges = list(body.joints)
-    # Limit softness from the z hinge: Newton's MuJoCo conversion maps a ball joint to its last DoF.
-    z = hinges[-1]
-    solref, solimp, margin = list(z.solref_limit), list(z.solimp_limit), float(z.margin)
-    for j in hinges:
-        spec.delete(j)
-    ball = body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_BALL)
-    ball.solref_limit, ball.solimp_limit, ball.margin = solref, solimp, margin
-    ball.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
-    ball.armature = float(np.mean(armature))  # exact per-axis values are patched into the compiled model
-
-
-def _set_ball_limit(ball: mujoco.MjsJoint, cone: float | None, degree: bool) -> None:
-    """Limit a ball joint's rotation angle to `cone` (rad; MuJoCo's ball limit is this cone, range[1] with
-    range[0] = 0), or leave it unlimited for None. `degree`: the MjSpec compiles angles in degrees (MuJoCo's
-    default when the MJCF does not say angle="radian", e.g. SMPL)."""
-    if cone is None:
-        ball.limited = mujoco.mjtLimited.mjLIMITED_FALSE
-        return
-    ball.limited = mujoco.mjtLimited.mjLIMITED_TRUE
-    ball.range = [0.0, math.degrees(cone) if degree else cone]
-
-
-def _add_floor(scene: mujoco.MjSpec) -> None:
-    scene.worldbody.add_geom(
-        name=FLOOR_NAME,
-        type=mujoco.mjtGeom.mjGEOM_PLANE,
-        size=[0.0, 0.0, 0.05],
-        condim=3,
-        friction=[1.0, 0.005, 0.0001],
-        rgba=[0.22, 0.24, 0.27, 1.0],
-    )
-
-
-def _set_options(scene: mujoco.MjSpec, config: EngineConfig) -> None:
-    opt = scene.option
-    opt.timestep = 1.0 / config.sim_freq
-    opt.integrator = _INTEGRATORS[config.integrator]
-    opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
-    opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
-    opt.iterations = config.solver_iterations
-    opt.ls_iterations = config.ls_iterations
-    opt.impratio = 10.0  # mirrors Newton's SolverMuJoCo; only matters for elliptic cones
-
-
-def _actuator_gains(mode: ControlMode, kp: float, kd: float) -> tuple[float, list[float]]:
-    """(gain, bias[0:3]) of an affine actuator: force = gain·ctrl + b0 + b1·length + b2·velocity."""
-    if mode == ControlMode.pos:
-        return kp, [0.0, -kp, -kd]
-    if mode == ControlMode.vel:
-        return kd, [0.0, 0.0, -kd]
-    return 1.0, [0.0, 0.0, 0.0]  # torque, and pd_explicit (its PD torque is computed by the engine)
-
-
-def _add_dof_actuators(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel, mode: ControlMode) -> None:
-    """One actuator per DoF in DoF order; a ball joint gets three with gear e_x, e_y, e_z, whose length is
-    the matching exp-map component of the joint rotation (MuJoCo's ball transmission)."""
-    kp, kd, limit = kin.dof_array("kp"), kin.dof_array("kd"), kin.dof_array("torque_limit")
-    for joint in kin.joints[1:]:
-        for axis in range(joint.dof_dim):
-            col = joint.dof_idx + axis
-            act = scene.add_actuator()
-            act.name = f"{prefix}{joint.name}_{'xyz'[axis]}" if joint.dof_dim == 3 else f"{prefix}{joint.name}"
-            act.trntype = mujoco.mjtTrn.mjTRN_JOINT
-            act.target = prefix + joint.name if joint.type == JointType.SPHERICAL else prefix + joint.mjcf_joints[0]
-            gear = np.zeros(6)
-            gear[axis] = 1.0
-            act.gear = gear
-            gain, bias = _actuator_gains(mode, float(kp[col]), float(kd[col]))
-            gainprm, biasprm = np.zeros_like(act.gainprm), np.zeros_like(act.biasprm)
-            gainprm[0], biasprm[:3] = gain, bias
-            act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
-            act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
-            act.gainprm, act.biasprm = gainprm, biasprm
-            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-            if np.isfinite(limit[col]):
-                act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-                act.forcerange = [-float(limit[col]), float(limit[col])]
-
-
-def _add_body_sensors(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel) -> None:
-    """Per body, the state sensors of `_BODY_SENSORS`: computed in C with the kinematics, so that a step's
-    body states reach the stacked arrays in one copy per env (sensordata) rather than one per MjData field."""
-    for name in kin.body_names:
-        for suffix, sensor, objtype in _BODY_SENSORS:
-            scene.add_sensor(name=f"{prefix}{name}_{suffix}", type=sensor, objtype=objtype, objname=prefix + name)
-
-
-def _add_contact_sensors(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel) -> None:
-    """Per body: net force over all its contacts, then over its contacts with the floor."""
-    for name in kin.body_names:
-        for refname in (None, FLOOR_NAME):
-            scene.add_sensor(
-                name=f"{prefix}{name}_{'ground' if refname else 'contact'}",
-                type=mujoco.mjtSensor.mjSENS_CONTACT,
-                objtype=mujoco.mjtObj.mjOBJ_BODY,
-                objname=prefix + name,
-                reftype=mujoco.mjtObj.mjOBJ_GEOM if refname else mujoco.mjtObj.mjOBJ_UNKNOWN,
-                refname=refname or "",
-                intprm=_CONTACT_SENSOR_INTPRM,
-            )
-
-
-def _exclude_self_collisions(scene: mujoco.MjSpec, prefix: str, kin: KinCharModel) -> None:
-    names = kin.body_names
-    for a in range(len(names)):
-        for b in range(a + 1, len(names)):
-            scene.add_exclude(bodyname1=prefix + names[a], bodyname2=prefix + names[b])
-
-
 # ---------------------------------------------------------------------------------------------- engine
 class MujocoEngine(Engine):
     """MuJoCo on the CPU; see the module docstring. Tensor shapes as in `Engine`."""
@@ -332,13 +100,18 @@ class MujocoEngine(Engine):
     def get_name(self) -> str:
         return "mujoco"
 
+    def obj_layout(self, obj_id: int) -> MjObjLayout:
+        """Where object `obj_id` lives in `mj_model` (its body, joint, actuator and sensor indices), for tools
+        and tests that read the compiled model; the engine's own, not to be changed."""
+        return self._layouts[obj_id]
+
     # ------------------------------------------------------------------ creation
     def _sim_initialized(self) -> bool:
         return self.mj_model is not None
 
     def initialize_sim(self) -> None:
         objs = self._check_env_objects()
-        self.mj_model, self._layouts = self._build_model(objs)
+        self.mj_model, self._layouts = build_scene(self._config, objs, [self._kin_model(o.asset_file) for o in objs])
         m = self.mj_model
         self.mj_datas = [mujoco.MjData(m) for _ in range(self._num_envs)]
         self._views = {f: [getattr(d, f) for d in self.mj_datas] for f in _GATHERED_FIELDS}
@@ -377,99 +150,6 @@ class MujocoEngine(Engine):
                 kp[lay.act_ids], kd[lay.act_ids] = lay.kp, lay.kd
         return kp, kd
 
-    def _build_model(self, objs: list[ObjRecord]) -> tuple[mujoco.MjModel, list[_ObjLayout]]:
-        cfg = self._config
-        scene = mujoco.MjSpec()
-        scene.modelname = "mimickit_scene"
-        _set_options(scene, cfg)
-        _add_floor(scene)
-        prefixes, ball_armature = [], []
-        for i, rec in enumerate(objs):
-            kin = self._kin_model(rec.asset_file)
-            spec = load_mjcf_spec(rec.asset_file)
-            ball_armature.append(_adapt_object_spec(spec, rec, kin, cfg.ball_joint_limits == "cone"))
-            prefix = f"{i}_{rec.name}/"
-            scene.attach(spec, prefix=prefix, frame=scene.worldbody.add_frame())
-            if not rec.enable_self_collisions:
-                _exclude_self_collisions(scene, prefix, kin)
-            if has_motors(self._config.control_mode, rec, kin):
-                _add_dof_actuators(scene, prefix, kin, cfg.control_mode)
-            _add_body_sensors(scene, prefix, kin)
-            if not rec.is_visual:
-                _add_contact_sensors(scene, prefix, kin)
-            prefixes.append(prefix)
-        m = compile_spec(scene, objs[0].asset_file if objs else "scene")
-        layouts = [self._layout(m, rec, prefix) for rec, prefix in zip(objs, prefixes, strict=True)]
-        for lay, armature in zip(layouts, ball_armature, strict=True):
-            for jname, values in armature.items():  # per-axis hinge armature onto the ball's 3 DoFs
-                j = m.joint(lay.prefix + jname).id
-                m.dof_armature[m.jnt_dofadr[j] : m.jnt_dofadr[j] + 3] = values
-        return m, layouts
-
-    def _layout(self, m: mujoco.MjModel, rec: ObjRecord, prefix: str) -> _ObjLayout:
-        kin = self._kin_model(rec.asset_file)
-        body_ids = np.array([m.body(prefix + n).id for n in kin.body_names])
-        root = int(body_ids[0])
-        free = m.body_jntnum[root] == 1
-        root_jnt = int(m.body_jntadr[root])
-        dof_qvel, hinge_cols, hinge_qpos, ball_cols, ball_qpos = [], [], [], [], []
-        hinge_joints, hinge_axes, ball_joints = [], [], []
-        for jid, joint in enumerate(kin.joints[1:]):
-            if joint.dof_dim == 0:
-                continue
-            j = int(m.body_jntadr[body_ids[joint.body_id]])
-            qadr, vadr = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
-            if joint.type == JointType.HINGE:
-                hinge_cols.append(joint.dof_idx)
-                hinge_qpos.append(qadr)
-                dof_qvel.append(vadr)
-                hinge_joints.append(jid)
-                hinge_axes.append(np.asarray(joint.axis, dtype=np.float64) / np.linalg.norm(joint.axis))
-            else:
-                ball_cols.append([joint.dof_idx + k for k in range(3)])
-                ball_qpos.append([qadr + k for k in range(4)])
-                dof_qvel += [vadr + k for k in range(3)]
-                ball_joints.append(jid)
-        act_names = self._actuator_names(kin) if has_motors(self._config.control_mode, rec, kin) else []
-        act_ids = np.array([m.actuator(prefix + a).id for a in act_names], dtype=np.int64)
-        body_adr = [
-            [col for suffix, _, _ in _BODY_SENSORS for col in _sensor_columns(m, f"{prefix}{n}_{suffix}")]
-            for n in kin.body_names
-        ]
-        contact_adr, ground_adr = [], []
-        if not rec.is_visual:
-            for n in kin.body_names:
-                contact_adr += _sensor_columns(m, f"{prefix}{n}_contact")
-                ground_adr += _sensor_columns(m, f"{prefix}{n}_ground")
-        lay = _ObjLayout(
-            kin=kin,
-            actuated=has_motors(self._config.control_mode, rec, kin),
-            prefix=prefix,
-            body_ids=body_ids,
-            root_qpos=int(m.jnt_qposadr[root_jnt]) if free else -1,
-            root_qvel=int(m.jnt_dofadr[root_jnt]) if free else -1,
-            mocap_id=-1 if free else int(m.body_mocapid[root]),
-            root_ipos=m.body_ipos[root].copy(),
-            dof_qvel=np.array(dof_qvel, dtype=np.int64),
-            hinge_cols=np.array(hinge_cols, dtype=np.int64),
-            hinge_qpos=np.array(hinge_qpos, dtype=np.int64),
-            ball_cols=np.array(ball_cols, dtype=np.int64).reshape(-1, 3),
-            ball_qpos=np.array(ball_qpos, dtype=np.int64).reshape(-1, 4),
-            hinge_joints=np.array(hinge_joints, dtype=np.int64),
-            hinge_axes=np.array(hinge_axes, dtype=np.float64).reshape(-1, 3),
-            ball_joints=np.array(ball_joints, dtype=np.int64),
-            act_ids=act_ids.astype(np.int64),
-            body_adr=np.array(body_adr, dtype=np.int64)[:, _WXYZ_TO_XYZW_COLUMNS],
-            contact_adr=np.array(contact_adr, dtype=np.int64),
-            ground_adr=np.array(ground_adr, dtype=np.int64),
-        )
-        lay.kp, lay.kd = mode_gains(self._config.control_mode, kin, lay.actuated)
-        return lay
-
-    @staticmethod
-    def _actuator_names(kin: KinCharModel) -> list[str]:
-        return [f"{j.name}_{'xyz'[a]}" if j.dof_dim == 3 else j.name for j in kin.joints[1:] for a in range(j.dof_dim)]
-
     def _place_start_poses(self) -> None:
         """Write every env's start poses into the stacked state (pushed into MjData by `_sync`)."""
         qpos0 = self.mj_model.qpos0
@@ -487,7 +167,7 @@ class MujocoEngine(Engine):
     def _init_threads(self) -> None:
         nthread = self._config.num_threads or os.cpu_count() or 1
         self._nthread = max(1, min(nthread, self._num_envs))
-        self._chunks = _guided_chunks(self._num_envs, self._nthread)
+        self._chunks = guided_chunks(self._num_envs, self._nthread)
         # Per env: (MjData, its ctrl array, the env's row of the command buffer), iterated by the workers.
         self._env_io = [(d, d.ctrl, self._ctrl[i]) for i, d in enumerate(self.mj_datas)]
         self._pool = ThreadPoolExecutor(max_workers=self._nthread - 1) if self._nthread > 1 else None
@@ -762,25 +442,25 @@ class MujocoEngine(Engine):
         self._write_root_vel(ids, lay, _rows(root_vel, n, 3), _rows(root_ang_vel, n, 3))
         self._dirty[ids] = True
 
-    def _root_rot_wxyz(self, ids: np.ndarray, lay: _ObjLayout) -> np.ndarray:
+    def _root_rot_wxyz(self, ids: np.ndarray, lay: MjObjLayout) -> np.ndarray:
         q = self._host["qpos"][ids, lay.root_qpos + 3 : lay.root_qpos + 7]
         return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
-    def _root_vel_world(self, ids: np.ndarray, lay: _ObjLayout) -> tuple[np.ndarray, np.ndarray]:
+    def _root_vel_world(self, ids: np.ndarray, lay: MjObjLayout) -> tuple[np.ndarray, np.ndarray]:
         """Current root (COM velocity, angular velocity), world frame, [n, 3] each, from the stacked qvel."""
         rot = self._root_rot_wxyz(ids, lay)
         qv = self._host["qvel"][ids, lay.root_qvel : lay.root_qvel + 6]
-        ang_vel = _rotate_wxyz(rot, qv[:, 3:])
-        vel = qv[:, :3] + _cross(ang_vel, _rotate_wxyz(rot, lay.root_ipos))
+        ang_vel = quat_rotate_wxyz(rot, qv[:, 3:])
+        vel = qv[:, :3] + cross(ang_vel, quat_rotate_wxyz(rot, lay.root_ipos))
         return vel, ang_vel
 
-    def _write_root_vel(self, ids: np.ndarray, lay: _ObjLayout, vel: np.ndarray, ang_vel: np.ndarray) -> None:
+    def _write_root_vel(self, ids: np.ndarray, lay: MjObjLayout, vel: np.ndarray, ang_vel: np.ndarray) -> None:
         """Store world-frame (COM velocity, angular velocity) [n, 3] as MuJoCo free-joint qvel."""
         rot = self._root_rot_wxyz(ids, lay)
         qvel = self._host["qvel"]
-        qvel[ids, lay.root_qvel : lay.root_qvel + 3] = vel - _cross(ang_vel, _rotate_wxyz(rot, lay.root_ipos))
+        qvel[ids, lay.root_qvel : lay.root_qvel + 3] = vel - cross(ang_vel, quat_rotate_wxyz(rot, lay.root_ipos))
         inv = rot * np.array([1.0, -1.0, -1.0, -1.0])
-        qvel[ids, lay.root_qvel + 3 : lay.root_qvel + 6] = _rotate_wxyz(inv, ang_vel)
+        qvel[ids, lay.root_qvel + 3 : lay.root_qvel + 6] = quat_rotate_wxyz(inv, ang_vel)
 
     def _env_ids(self, env_ids: EnvIds) -> np.ndarray:
         if env_ids is None:
@@ -834,7 +514,7 @@ class MujocoEngine(Engine):
 
 
 # ---------------------------------------------------------------------------------------------- helpers
-def _guided_chunks(n: int, nthread: int) -> list[slice]:
+def guided_chunks(n: int, nthread: int) -> list[slice]:
     """Contiguous env slices covering 0..n, each 1/(GUIDED_SPLIT × nthread) of what is left (at least 1)."""
     chunks, lo = [], 0
     while lo < n:
@@ -842,11 +522,6 @@ def _guided_chunks(n: int, nthread: int) -> list[slice]:
         chunks.append(slice(lo, lo + size))
         lo += size
     return chunks
-
-
-def _sensor_columns(m: mujoco.MjModel, name: str) -> list[int]:
-    s = m.sensor(name)
-    return list(range(int(s.adr[0]), int(s.adr[0]) + int(s.dim[0])))
 
 
 def _update_kinematics(m: mujoco.MjModel, d: mujoco.MjData) -> None:
@@ -860,11 +535,11 @@ def _update_kinematics(m: mujoco.MjModel, d: mujoco.MjData) -> None:
 
 
 def _refresh_obj(
-    lay: _ObjLayout, out: dict[str, np.ndarray], h: dict[str, np.ndarray], rows: slice | np.ndarray, contacts: bool
+    lay: MjObjLayout, out: dict[str, np.ndarray], h: dict[str, np.ndarray], rows: slice | np.ndarray, contacts: bool
 ) -> None:
     """Write one object's state rows `rows` of `out` (see `_ObjState`) from stacked MjData fields h[field]
     [n, ...] (float64, already restricted to those rows)."""
-    body = h["sensordata"][:, lay.body_adr]  # [n, B, 13] (see _ObjLayout.body_adr)
+    body = h["sensordata"][:, lay.body_adr]  # [n, B, 13] (see MjObjLayout.body_adr)
     out["body_pos"][rows] = body[..., 0:3]
     out["body_rot"][rows] = body[..., 3:7]
     out["body_vel"][rows] = body[..., 7:10]
@@ -874,8 +549,8 @@ def _refresh_obj(
         qpos = h["qpos"]
         dof_pos = np.empty((qpos.shape[0], lay.num_dofs))
         dof_pos[:, lay.hinge_cols] = qpos[:, lay.hinge_qpos]
-        ball = _quat_wxyz_canonical(qpos[:, lay.ball_qpos])
-        dof_pos[:, lay.ball_cols] = _quat_wxyz_to_exp_map(ball)
+        ball = quat_wxyz_canonical(qpos[:, lay.ball_qpos])
+        dof_pos[:, lay.ball_cols] = quat_wxyz_to_exp_map(ball)
         out["dof_pos"][rows] = dof_pos
         out["joint_rot"][rows] = _joint_rot(lay, qpos[:, lay.hinge_qpos], ball)
         out["dof_vel"][rows] = h["qvel"][:, lay.dof_qvel]
@@ -887,13 +562,7 @@ def _refresh_obj(
         out["ground_contact_forces"][rows] = 0.0 - h["sensordata"][:, lay.ground_adr].reshape(n, nb, 3)
 
 
-def _quat_wxyz_canonical(q: np.ndarray) -> np.ndarray:
-    """Quaternions [..., 4] (w first) normalised, with w >= 0."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-def _joint_rot(lay: _ObjLayout, hinge_angle: np.ndarray, ball_wxyz: np.ndarray) -> np.ndarray:
+def _joint_rot(lay: MjObjLayout, hinge_angle: np.ndarray, ball_wxyz: np.ndarray) -> np.ndarray:
     """Local joint rotations [n, J-1, 4] (xyzw) from hinge angles [n, H] and canonical ball quaternions
     [n, K, 4] (w first): what `KinCharModel.dof_to_rot` gives for the DoFs, without the exp-map trip."""
     n = hinge_angle.shape[0]
@@ -904,31 +573,6 @@ def _joint_rot(lay: _ObjLayout, hinge_angle: np.ndarray, ball_wxyz: np.ndarray) 
     rot[:, lay.hinge_joints, 3:] = np.cos(half)
     rot[:, lay.ball_joints] = ball_wxyz[..., [1, 2, 3, 0]]
     return rot
-
-
-def _quat_wxyz_to_exp_map(q: np.ndarray) -> np.ndarray:
-    """Canonical MuJoCo quaternions [..., 4] (w first, unit, w >= 0: `_quat_wxyz_canonical`) to exp-maps
-    [..., 3]: numpy twin of `torch_util.quat_to_exp_map` (the angle is in [0, π], zero near identity)."""
-    v = q[..., 1:]
-    sin_half = np.linalg.norm(v, axis=-1, keepdims=True)
-    angle = 2.0 * np.arctan2(sin_half, q[..., :1])
-    small = sin_half <= 1e-5
-    return np.where(small, 0.0, v * (angle / np.where(small, 1.0, sin_half)))
-
-
-def _rotate_wxyz(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate v [n, 3] (or one [3]) by unit quaternions q [n, 4] (w first)."""
-    w, u = q[:, :1], q[:, 1:]
-    t = 2.0 * _cross(u, v)
-    return v + w * t + _cross(u, t)
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b over the last axis, broadcasting; on these small arrays np.cross spends most of its time
-    on argument handling (axis moves), several times the arithmetic."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:

@@ -52,7 +52,7 @@ def test_ball_joints_get_the_cone_of_their_hinge_ranges(limits):
     for joint in kin.joints[1:]:
         if joint.dof_dim == 0:
             continue  # hands: no joint
-        j = m.joint(engine._layouts[0].prefix + joint.name).id
+        j = m.joint(engine.obj_layout(0).prefix + joint.name).id
         if joint.dof_dim == 1:
             assert m.jnt_limited[j]  # hinges keep their MJCF limits either way
             continue
@@ -76,7 +76,7 @@ def test_cones_are_radians_when_the_mjcf_counts_in_degrees(test_data):
     balls = [j for j in kin.joints[1:] if j.dof_dim == 3]
     assert len(balls) == 23
     for joint in balls:
-        j = m.joint(engine._layouts[0].prefix + joint.name).id
+        j = m.joint(engine.obj_layout(0).prefix + joint.name).id
         np.testing.assert_allclose(m.jnt_range[j], [0.0, ball_cone_angle(joint.low, joint.high)], rtol=1e-6)
 
 

@@ -14,7 +14,7 @@ import torch
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.engines.engine import ControlMode, EngineConfig, ObjType
 from mimickit.engines.engine_builder import build_engine
-from mimickit.engines.mujoco_engine import MujocoEngine, _guided_chunks
+from mimickit.engines.mujoco_engine import MujocoEngine, guided_chunks
 from mimickit.util import torch_util as tu
 from mimickit.util.config import load_config
 from mimickit.util.errors import MimicKitError
@@ -56,7 +56,7 @@ def random_dof(engine: MujocoEngine, n: int, gen: torch.Generator, margin: float
     low, high = (torch.from_numpy(x).float() for x in engine.get_obj_dof_limits(0, 0))
     mid, half = (low + high) / 2, (high - low) / 2 * margin
     dof = mid + half * (2 * torch.rand(n, len(low), generator=gen) - 1)
-    kin = engine._layouts[0].kin
+    kin = engine.obj_layout(0).kin
     for j in kin.joints[1:]:
         if j.dof_dim == 3:
             e = dof[:, j.dof_idx : j.dof_idx + 3]
@@ -147,7 +147,7 @@ def test_state_round_trips_and_velocity_frames(humanoid_xml):
             engine.step()
         for e in range(n):
             d = engine.mj_datas[e]
-            for b, body_id in enumerate(engine._layouts[0].body_ids):
+            for b, body_id in enumerate(engine.obj_layout(0).body_ids):
                 mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, int(body_id), res, 0)
                 np.testing.assert_allclose(engine.get_body_ang_vel(0)[e, b], res[:3], atol=1e-4)
                 np.testing.assert_allclose(engine.get_body_vel(0)[e, b], res[3:], atol=1e-4)
@@ -161,7 +161,7 @@ def test_joint_rotations_are_the_dofs_as_rotations_both_ways(humanoid_xml):
     set_dof_pos of rot_to_dof would, also for only some envs."""
     n = 6
     engine = make_engine(humanoid_xml, num_envs=n)
-    kin = engine._layouts[0].kin
+    kin = engine.obj_layout(0).kin
     gen = torch.Generator().manual_seed(7)
     dof = random_dof(engine, n, gen)
     engine.set_dof_pos(None, 0, dof)
@@ -228,7 +228,7 @@ def test_ball_joint_actuator_length_is_the_exp_map(humanoid_xml):
     dof = engine.get_dof_pos(0).double().numpy()
     for e, d in enumerate(engine.mj_datas):
         mujoco.mj_forward(engine.mj_model, d)
-        np.testing.assert_allclose(d.actuator_length[engine._layouts[0].act_ids], dof[e], atol=1e-5)
+        np.testing.assert_allclose(d.actuator_length[engine.obj_layout(0).act_ids], dof[e], atol=1e-5)
 
 
 def test_ball_joint_pd_reaches_an_exp_map_target(humanoid_xml):
@@ -339,7 +339,7 @@ def test_concurrent_work_runs_once_per_step_and_leaves_the_physics_unchanged(hum
     """step(concurrent=fn): fn runs on the calling thread while the worker takes chunks of envs; every env
     ends bit-identical to a plain step, and an error in fn surfaces after the workers finish."""
     n = 37
-    sizes = [c.stop - c.start for c in _guided_chunks(n, 2)]
+    sizes = [c.stop - c.start for c in guided_chunks(n, 2)]
     assert sum(sizes) == n and sizes == sorted(sizes, reverse=True) and sizes[-1] == 1  # big first, single last
     engines = []
     for _ in range(2):
@@ -397,7 +397,7 @@ def test_ground_contact_forces_carry_the_body_weight_on_the_feet(humanoid_xml):
         world = c.frame.reshape(3, 3).T @ local[:3]  # force of geom1 on geom2, world frame
         by_hand[m.geom_bodyid[c.geom[0]]] -= world
         by_hand[m.geom_bodyid[c.geom[1]]] += world
-    body_ids = engine._layouts[0].body_ids
+    body_ids = engine.obj_layout(0).body_ids
     np.testing.assert_allclose(ground.double().numpy(), by_hand[body_ids], rtol=1e-4, atol=1e-3)
 
 
