@@ -275,8 +275,9 @@ def test_deepmimic_reference_state_scores_one_and_char_env_holds_its_pose():
     fields = {k: getattr(env_cfg, k) for k in CharEnvConfig.model_fields}
     char = CharEnv(CharEnvConfig(**dict(fields, env_name="char", episode_length=100.0)), engine_cfg, 1)
     char.reset()
+    init_dof_pos = char.engine.get_dof_pos(char.get_char_id()).clone()  # the reset's pose: the config's init_pose
     for _ in range(30):
-        char.step(char._init_dof_pos.expand(1, -1))
+        char.step(init_dof_pos)
     assert abs(char.engine.get_root_pos(0)[0, 2].item() - INIT_ROOT_POS[2]) < 0.05
 
 
