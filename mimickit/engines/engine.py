@@ -16,7 +16,8 @@ from __future__ import annotations
 import abc
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
@@ -353,12 +354,17 @@ class Engine(abc.ABC):
         """Store the command [N, D] for the control mode (pos targets, vel targets or torques)."""
 
     @abc.abstractmethod
-    def step(self, concurrent: Callable[[], None] | None = None) -> None:
-        """Advance one control step (all substeps, all envs) and refresh the state tensors.
+    def step(self) -> None:
+        """Advance one control step (all substeps, all envs) and refresh the state tensors."""
 
-        `concurrent`, if given, is called once on the calling thread while the physics runs (the MuJoCo
-        engine's workers step the envs meanwhile; Newton's kernels are queued before it): work that does
-        not read or write the engine's state, such as evaluating a reference clip at the new time."""
+    @contextmanager
+    def stepping(self) -> Iterator[None]:
+        """A control step (as `step`) while the block runs on the calling thread: for a caller's work that
+        neither reads nor writes this engine, which may then overlap the physics (the MuJoCo engine's
+        worker threads step the envs meanwhile; Newton's kernels are queued before it). This default
+        runs the block, then the step."""
+        yield
+        self.step()
 
     # ------------------------------------------------------------------ timing / misc
     def get_timestep(self) -> float:

@@ -32,8 +32,9 @@ from __future__ import annotations
 
 import os
 import queue
-from collections.abc import Callable
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -193,7 +194,13 @@ class MujocoEngine(Engine):
         target = self._pd_target if mode == ControlMode.pd_explicit else self._ctrl
         target[:, lay.act_ids] = values
 
-    def step(self, concurrent: Callable[[], None] | None = None) -> None:
+    def step(self) -> None:
+        with self.stepping():
+            pass
+
+    @contextmanager
+    def stepping(self) -> Iterator[None]:
+        """The block runs on the calling thread while the workers run the first pass of substeps."""
         self._push_edits()
         nsub = self._config.substeps
         if nsub > 1:
@@ -203,26 +210,30 @@ class MujocoEngine(Engine):
             flags = opt.disableflags
             opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_SENSOR
             try:
-                self._run_workers(nsub - 1, first=True, last=False, concurrent=concurrent)
+                with self._workers_running(nsub - 1, first=True, last=False):
+                    yield
             finally:
                 opt.disableflags = flags
-            concurrent = None
-        self._run_workers(1, first=nsub == 1, last=True, concurrent=concurrent)
+            with self._workers_running(1, first=False, last=True):
+                pass
+        else:
+            with self._workers_running(1, first=True, last=True):
+                yield
         # Gather and refresh once here rather than per chunk in the workers: measured as fast or faster
         # (numpy ops in a worker hold the GIL that the other workers need between mj_step calls).
         self._gather(slice(None))
         self._refresh(slice(None))
         self._sim_time += self.get_timestep()
 
-    def _run_workers(self, nstep: int, first: bool, last: bool, concurrent: Callable[[], None] | None = None) -> None:
+    @contextmanager
+    def _workers_running(self, nstep: int, first: bool, last: bool) -> Iterator[None]:
         """Advance every env `nstep` substeps. The threads take chunks from one queue (see GUIDED_SPLIT);
-        with `concurrent`, the calling thread runs it first and then takes chunks too, so the envs it would
-        have stepped go to whichever thread is free."""
+        the calling thread runs the block first and then takes chunks too, so the envs it would have
+        stepped go to whichever thread is free."""
         pd = self._config.control_mode == ControlMode.pd_explicit
         worker = partial(self._step_chunk_pd_explicit if pd else self._step_chunk, nstep=nstep, first=first, last=last)
         if self._pool is None:  # one thread, or closed
-            if concurrent is not None:
-                concurrent()
+            yield
             worker(slice(None))
             return
         todo: queue.SimpleQueue[slice] = queue.SimpleQueue()
@@ -239,8 +250,7 @@ class MujocoEngine(Engine):
 
         futures = [self._pool.submit(drain) for _ in range(self._nthread - 1)]
         try:
-            if concurrent is not None:
-                concurrent()
+            yield
         finally:
             drain()
             for f in futures:

@@ -39,7 +39,8 @@ the one counterpart, fed by the solver's CONTACT_F observable after the last sub
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
@@ -405,7 +406,12 @@ class NewtonEngine(Engine):
             self._tau[obj_id][:] = torch.maximum(torch.minimum(value, limit), -limit)
             self._write_joint_f(lay, self._tau[obj_id])
 
-    def step(self, concurrent: Callable[[], None] | None = None) -> None:
+    def step(self) -> None:
+        with self.stepping():
+            pass
+
+    @contextmanager
+    def stepping(self) -> Iterator[None]:
         self._sync()
         dt = self.get_sim_timestep()
         nsub = self._config.substeps
@@ -420,8 +426,7 @@ class NewtonEngine(Engine):
             self.solver.step(self.state, self.state, self.control, self.contacts, dt, observables=obs)
         if self.sensor is not None:
             self.sensor.update(self.state, self.contacts, observables=self.observables)
-        if concurrent is not None:  # on a GPU the kernels above are queued, not yet run: this overlaps them
-            concurrent()
+        yield  # on a GPU the kernels above are queued, not yet run: the block overlaps them
         self._refresh(contacts=True)
         self._sim_time += self.get_timestep()
 

@@ -102,7 +102,6 @@ class CharEnv(SimEnv):
         self._reset_char(env_ids)
 
     def _reset_char(self, env_ids: torch.Tensor) -> None:
-        self._drop_preset_states()  # what an earlier reset step set for some of these envs is overwritten
         n = len(env_ids)
         e, c = self._engine, self._char_id
         e.set_root_state(env_ids, c, self._init_root_pos.expand(n, -1), self._init_root_rot.expand(n, -1), 0.0, 0.0)
@@ -115,25 +114,9 @@ class CharEnv(SimEnv):
 
     def _char_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """The character's live state from the engine (plus `joint_rot`, the DoFs as local joint
-        rotations), optionally for a subset of envs. While step() or reset() only reads the sim, the state
-        of the envs asked for (all, or the one env_ids tensor a reset passes around) is computed once;
-        callers get their own dict and must not write into its tensors."""
-        if not self._state_frozen:
-            return self._read_char_state(env_ids)
-        key = _state_key(env_ids)
-        if key not in self._state_cache:  # the entry keeps env_ids alive, so its id is not reused meanwhile
-            self._state_cache[key] = (env_ids, self._read_char_state(env_ids))
-        return dict(self._state_cache[key][1])
-
-    def _preset_char_state(self, env_ids: torch.Tensor, state: dict[str, torch.Tensor]) -> None:
-        """Record the character state a reset has just set for `env_ids` (the `_char_state` keys but
-        `dof_pos`), so that the reset's observations and info read it rather than the engine: the engine
-        would recompute the same (to float rounding) with a kinematics pass for those envs, which the next
-        step does anyway. Only `_char_state(env_ids)` with this very tensor sees it, until the reset ends."""
-        self._state_cache[_state_key(env_ids)] = (env_ids, state)
-
-    def _drop_preset_states(self) -> None:
-        self._state_cache.clear()
+        rotations), optionally for a subset of envs. Callers get their own dict and must not write into
+        its tensors (an env may answer from what it has read or set already: DeepMimicEnv does)."""
+        return self._read_char_state(env_ids)
 
     def _read_char_state(self, env_ids: torch.Tensor | None) -> dict[str, torch.Tensor]:
         e, c = self._engine, self._char_id
@@ -165,11 +148,6 @@ class CharEnv(SimEnv):
             self.config.global_obs,
             self.config.root_height_obs,
         )
-
-
-def _state_key(env_ids: torch.Tensor | None) -> tuple[str, int | None]:
-    """The state cache's key for the character state of `env_ids` (that tensor object, or all envs)."""
-    return ("char", None if env_ids is None else id(env_ids))
 
 
 def action_bounds_pos(char: KinCharModel, zero_center: bool) -> tuple[np.ndarray, np.ndarray]:

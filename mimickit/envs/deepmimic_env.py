@@ -6,13 +6,15 @@ bodies and on pose deviation. `info["reward_terms"]` holds each unweighted term 
 reward and `info["tracking"]` the tracking errors [N]. A reset leaves both as the last step's (like the
 reward buffer, they describe the step that ended the episode until the env steps again), except that in
 TEST mode it updates and records the tracking errors of its envs, as the reference does. A reset observes
-the state it set (the reference frame) without reading the engine back, and takes that frame from a pool
-evaluated ahead during the physics (see "reset pool").
+the state it set (the reference frame, held by its `ResetBatch`) without reading the engine back, and
+takes that frame from a pool evaluated ahead during the physics (see "reset pool"). A step reads the
+character's state from the engine once, for its observations, info, reward and done flags alike.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -31,6 +33,17 @@ from mimickit.util.errors import MimicKitError
 REF_CHAR_COLOR = (0.3, 0.5, 0.1)
 CONTACT_FORCE_THRESHOLD = 0.1  # N: any larger ground force on a non-contact body ends the episode
 ClipGroup = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # motion ids [n], times [n], steps [s] (× dt)
+
+
+@dataclass(frozen=True)
+class ResetBatch:
+    """The envs one `reset()` resets (the ids its hooks receive) and the character state it set for them:
+    the reference frame with its FK bodies (the `_char_state` keys but `dof_pos`). The reset's observations
+    and info read it rather than the engine, which would recompute the same (to float rounding) with a
+    kinematics pass that the next step does anyway."""
+
+    env_ids: torch.Tensor
+    char_state: dict[str, torch.Tensor]
 
 
 class DeepMimicEnv(CharEnv):
@@ -79,7 +92,9 @@ class DeepMimicEnv(CharEnv):
         self._ref_steps = torch.tensor([0, *steps], dtype=torch.float32, device=dev)
         self._all_env_ids = torch.arange(n, device=dev)
         self._frames: dict[str, torch.Tensor] = {}
-        self._tar_pose_obs: torch.Tensor | None = None  # valid from `_update_clock` until the frames change
+        self._tar_pose_obs: torch.Tensor | None = None  # valid from `_advance_clock` until the frames change
+        self._step_state: dict[str, torch.Tensor] | None = None  # the character's state since the last step
+        self._reset_batch: ResetBatch | None = None  # the reset in progress
         self._init_frames()
         self._build_reset_pool()
         self._ref_char_offset = torch.tensor(config.ref_char_offset, dtype=torch.float32, device=dev)
@@ -110,6 +125,12 @@ class DeepMimicEnv(CharEnv):
         self._tracking_sum: dict[str, float] = {}
         self._tracking_count = 0
         self._episode_ends = torch.zeros(len(DoneFlags), dtype=torch.long, device=self.device)
+
+    def reset(self, env_ids: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, Any]]:
+        try:
+            return super().reset(env_ids)
+        finally:
+            self._reset_batch = None
 
     def step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
         out = super().step(action)
@@ -210,7 +231,7 @@ class DeepMimicEnv(CharEnv):
 
     # ------------------------------------------------------------ reset pool
     # A reset state is the clip at a sampled (motion, time): it does not depend on the simulation. So the
-    # frames of the next resets are evaluated ahead, during the physics (`_update_clock`) and in the same
+    # frames of the next resets are evaluated ahead, during the physics (`_advance_clock`) and in the same
     # MotionLib/FK call as the newest reference column, and a reset takes them from this pool (it samples
     # and evaluates afresh only what the pool lacks). The pool holds about twice the recent resets per step.
     def _build_reset_pool(self) -> None:
@@ -277,13 +298,34 @@ class DeepMimicEnv(CharEnv):
         e.set_root_state(env_ids, c, ref["root_pos"], ref["root_rot"], ref["root_vel"], ref["root_ang_vel"])
         e.set_joint_rot(env_ids, c, ref["joint_rot"])
         e.set_dof_vel(env_ids, c, ref["dof_vel"])
-        self._preset_char_state(env_ids, ref)  # the state just set, with its FK bodies: the reference frame
+        self._step_state = None
+        self._reset_batch = ResetBatch(env_ids, ref)
         if self._enable_ref_char:
             self._pose_ref_char(env_ids)
 
     # ---------------------------------------------------------- per step
-    def _update_clock(self) -> None:
-        super()._update_clock()
+    def _step_physics(self) -> None:
+        """The engine's step, and meanwhile on this thread the clock and what depends on it alone: the
+        reference clip at the new time, its target features, the next resets' frames. None of that reads
+        or writes the engine, so it overlaps the physics (`Engine.stepping`)."""
+        self._step_state = None
+        with self._engine.stepping():
+            self._update_time()
+            self._advance_clock()
+
+    def _char_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """All envs: read from the engine once per step (or reset). The envs of the reset in progress:
+        the state it set (`ResetBatch`). Other subsets: read from the engine."""
+        if env_ids is None:
+            if self._step_state is None:
+                self._step_state = self._read_char_state(None)
+            return dict(self._step_state)
+        batch = self._reset_batch
+        if batch is not None and env_ids is batch.env_ids:
+            return dict(batch.char_state)
+        return super()._char_state(env_ids)
+
+    def _advance_clock(self) -> None:
         pool_samples = self._pool_request()
         if self._ref_each_step():
             self._advance_ref(pool_samples)
@@ -309,7 +351,7 @@ class DeepMimicEnv(CharEnv):
 
     def _compute_tar_obs(self, env_ids: torch.Tensor | None) -> torch.Tensor:
         """Target frames from the frame buffers at the current motion time (all envs: the buffers
-        themselves, no copy, and the pose features `_update_clock` computed during the physics)."""
+        themselves, no copy, and the pose features `_advance_clock` computed during the physics)."""
         tar = self._tar if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._tar.items()}
         ref_pos = self._char_state(env_ids)["root_pos"] if self.config.global_obs else tar["root_pos"][:, 0]
         ref_rot = tar["root_rot"][:, 0]

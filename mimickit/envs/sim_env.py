@@ -7,8 +7,6 @@ action space → sim tensors → data buffers (reward, done, timestep, time, obs
 from __future__ import annotations
 
 import abc
-from collections.abc import Iterator
-from contextlib import AbstractContextManager, contextmanager
 from typing import Any
 
 import torch
@@ -17,7 +15,6 @@ from mimickit.engines.engine import Engine, EngineConfig
 from mimickit.engines.engine_builder import build_engine
 from mimickit.envs.base_env import BaseEnv, BoxSpace, DoneFlags, EnvMode
 from mimickit.envs.env_config import SimEnvConfig
-from mimickit.util.threads import torch_threads
 from mimickit.util.timer import PhaseTimer
 
 
@@ -32,8 +29,6 @@ class SimEnv(BaseEnv):
     ) -> None:
         super().__init__(num_envs, device)
         self.profiler = PhaseTimer()
-        self._state_frozen = False  # True while step() only reads the sim (see step)
-        self._state_cache: dict[str, Any] = {}
         self.config = env_config
         self.engine_config = engine_config
         self._visualize = visualize
@@ -97,42 +92,28 @@ class SimEnv(BaseEnv):
         elif env_ids.dtype != torch.long or env_ids.dim() != 1:  # the envs index with index_select: 1-D long
             env_ids = env_ids.to(torch.long).reshape(-1)
         if len(env_ids) > 0:
-            with _one_torch_thread(), self.profiler.phase("reset"):
+            with self.profiler.phase("reset"):
                 self._reset_envs(env_ids)
-                with self._frozen_state():
-                    self._obs_buf.index_copy_(0, env_ids, self._compute_obs(env_ids))
-                    self._update_info(env_ids)
+                self._obs_buf.index_copy_(0, env_ids, self._compute_obs(env_ids))
+                self._update_info(env_ids)
         return self._obs_buf, self._info
 
     def step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
-        with _one_torch_thread():
-            return self._step(action)
-
-    def _step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        """One control step. The env sets no torch thread count: its caller picks the phase's (the agents'
+        rollouts, `mimickit bench` and the studio run it on one thread, see `util.threads`)."""
         with self.profiler.phase("action"):
             self._apply_action(action)
-        with self.profiler.phase("physics"):  # includes the clock work, which runs while the physics does
-            self._engine.step(concurrent=self._update_clock)
+        with self.profiler.phase("physics"):
+            self._step_physics()
         with self.profiler.phase("task"):
             self._update_misc()
-        with self._frozen_state():
-            with self.profiler.phase("observation"):
-                self._obs_buf[:] = self._compute_obs()
-            with self.profiler.phase("reward_done"):
-                self._update_info()
-                self._update_reward()
-                self._update_done()
+        with self.profiler.phase("observation"):
+            self._obs_buf[:] = self._compute_obs()
+        with self.profiler.phase("reward_done"):
+            self._update_info()
+            self._update_reward()
+            self._update_done()
         return self._obs_buf, self._reward_buf, self._done_buf, self._info
-
-    @contextmanager
-    def _frozen_state(self) -> Iterator[None]:
-        """Observation, info, reward and done only read the sim: within them a state read may be cached."""
-        self._state_frozen = True
-        try:
-            yield
-        finally:
-            self._state_frozen = False
-            self._state_cache.clear()
 
     # ------------------------------------------------------------- internals
     def _reset_envs(self, env_ids: torch.Tensor) -> None:
@@ -143,9 +124,9 @@ class SimEnv(BaseEnv):
     @abc.abstractmethod
     def _apply_action(self, action: torch.Tensor) -> None: ...
 
-    def _update_clock(self) -> None:
-        """Advance the env clock and what depends on it alone (a reference clip at the new time). The
-        engine runs this while it steps (`Engine.step(concurrent=...)`), so it must not touch the engine."""
+    def _step_physics(self) -> None:
+        """The engine's control step, then the env clock."""
+        self._engine.step()
         self._update_time()
 
     def _update_time(self) -> None:
@@ -167,10 +148,3 @@ class SimEnv(BaseEnv):
     def _update_done(self) -> None:
         timeout = self._time_buf >= self._episode_length
         self._done_buf[:] = torch.where(timeout, int(DoneFlags.TIME), int(DoneFlags.NULL))
-
-
-def _one_torch_thread() -> AbstractContextManager[None]:
-    """Env work runs with one torch intra-op thread. Its tensors are small ([N, ...] per env): a second
-    thread buys nothing but a fork/join per op, and afterwards spins on the core that a MuJoCo worker
-    needs. The caller's thread count (the agent's updates use all cores) is restored on exit."""
-    return torch_threads(1)

@@ -23,6 +23,7 @@ from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.env_builder import build_env
 from mimickit.util.errors import MimicKitError
 
+from mimickit.util.threads import torch_threads
 RAW_MODES = ("free", "replay")
 
 
@@ -47,7 +48,8 @@ def run_bench(
     rounds = max(1, min(rounds, steps))
     per_round = [steps // rounds + (r < steps % rounds) for r in range(rounds)]
     env_time, raw_time, ratios = 0.0, 0.0, []
-    with torch.inference_mode():  # as in a training rollout: no autograd bookkeeping
+    # As in a training rollout: no autograd bookkeeping, torch on one thread (the env's tensors are small).
+    with torch.inference_mode(), torch_threads(1):
         for _ in range(warmup):
             one_step()
         raw = engine.raw_rollout()  # None for an engine without a raw MuJoCo baseline: env figures only

@@ -23,6 +23,7 @@ from mimickit.envs.env_builder import build_env
 from mimickit.learning.agent_builder import build_agent
 from mimickit.tools.bench import random_action_step
 
+from mimickit.util.threads import torch_threads
 PHASES = ("sim", "inference", "update", "other")
 
 
@@ -74,7 +75,7 @@ def run_train_bench(
 
 def _env_round(env: Any, one_step: Any, steps: int) -> float:
     """Seconds of `steps` random-action control steps from freshly reset envs."""
-    with torch.no_grad():  # as in the training rollout
+    with torch.no_grad(), torch_threads(1):  # as in the training rollout
         env.reset()
         start = time.perf_counter()
         for _ in range(steps):

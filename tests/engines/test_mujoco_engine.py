@@ -336,7 +336,7 @@ def test_threaded_stepping_equals_one_thread(humanoid_xml):
 
 
 def test_concurrent_work_runs_once_per_step_and_leaves_the_physics_unchanged(humanoid_xml):
-    """step(concurrent=fn): fn runs on the calling thread while the worker takes chunks of envs; every env
+    """`with stepping(): fn()`: fn runs on the calling thread while the worker takes chunks of envs; every env
     ends bit-identical to a plain step, and an error in fn surfaces after the workers finish."""
     n = 37
     sizes = [c.stop - c.start for c in guided_chunks(n, 2)]
@@ -357,7 +357,8 @@ def test_concurrent_work_runs_once_per_step_and_leaves_the_physics_unchanged(hum
         for engine in engines:
             engine.set_cmd(0, cmd)
         engines[0].step()
-        engines[1].step(concurrent=lambda: calls.append(torch.randn(256, 64).sum()))
+        with engines[1].stepping():
+            calls.append(torch.randn(256, 64).sum())
     assert len(calls) == 4
     assert torch.equal(engines[0].get_body_pos(0), engines[1].get_body_pos(0))
     assert torch.equal(engines[0].get_dof_vel(0), engines[1].get_dof_vel(0))
@@ -365,8 +366,8 @@ def test_concurrent_work_runs_once_per_step_and_leaves_the_physics_unchanged(hum
     def fail() -> None:
         raise ValueError("from the concurrent work")
 
-    with pytest.raises(ValueError, match="concurrent work"):
-        engines[1].step(concurrent=fail)
+    with pytest.raises(ValueError, match="concurrent work"), engines[1].stepping():
+        fail()
     engines[1].step()  # the workers finished: the engine steps on
 
 
