@@ -34,6 +34,7 @@ TIMEOUT_S = 600.0
 
 def studio_for(executor: str, ray_url: str, runs_dir: Path) -> StudioProcess:
     extra = ("--executor", executor, "--ray-address", ray_url, "--clip", "none")
+    runs_dir.mkdir(parents=True)
     return StudioProcess(runs_dir, None, *extra, trainer=REAL_TRAINER)
 
 
