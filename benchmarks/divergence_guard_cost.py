@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT))
 from mimickit.learning.agent_builder import build_agent  # noqa: E402
 from mimickit.run import RunInputs, build_run_env  # noqa: E402
 from mimickit.util.arg_parser import ArgParser  # noqa: E402
-from mimickit.util.paths import resolve_data_path  # noqa: E402
+from mimickit.util.paths import PROJECT_DATA  # noqa: E402
 
 
 def _median_s(fn, repeats: int) -> float:
@@ -47,7 +47,7 @@ def main() -> None:
 
     args = ArgParser()
     args.load_args(["--arg_file", str(ROOT / opts.arg_file)])
-    path = lambda key: str(resolve_data_path(args.parse_string(key))) if args.parse_string(key) else None  # noqa: E731
+    path = lambda key: str(PROJECT_DATA.resolve(args.parse_string(key))) if args.parse_string(key) else None  # noqa: E731
     inputs = RunInputs(path("env_config") or "", path("engine_config"), path("agent_config"), None)
     env, _ = build_run_env(inputs, opts.num_envs, opts.device)
     agent = build_agent(inputs.agent_file, env, opts.device, verbose=False)

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import DataPaths
 
 DEFAULT_BENCH_AGENT = "data/agents/deepmimic_humanoid_ppo_cpu_agent.yaml"
 
@@ -63,11 +64,9 @@ def _motion_validate(args: argparse.Namespace) -> int:
 def _motion_convert(args: argparse.Namespace) -> int:
     from mimickit.anim.motion import save_motion
     from mimickit.tools.motion_convert import ConvertOptions, convert_motion
-    from mimickit.util.paths import set_data_dir
 
     if not args.out.endswith(".pkl"):
         raise MimicKitError(f"output must be a .pkl file, got {args.out}")
-    set_data_dir(args.data_dir)
     opts = ConvertOptions(
         fmt=args.format,
         char=args.char,
@@ -79,6 +78,7 @@ def _motion_convert(args: argparse.Namespace) -> int:
         up=args.up,
         input_fps=args.input_fps,
         root_rot_order=args.root_rot_order,
+        data_paths=DataPaths(args.data_dir),
     )
     result = convert_motion(args.input, opts)
     motion = result.motion
@@ -95,16 +95,17 @@ def _motion_convert(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     from mimickit.tools.bench import format_bench, run_bench
-    from mimickit.util.paths import set_data_dir
 
-    set_data_dir(args.data_dir)
+    paths = DataPaths(args.data_dir)
     if args.train:
         if args.steps is not None or args.raw is not None:
             raise MimicKitError("--steps and --raw time the env alone: --train times one iteration per round")
         from mimickit.tools.train_bench import format_train_bench, run_train_bench
 
         results = [
-            run_train_bench(args.engine_config, args.env_config, args.agent_config, n, rounds=args.rounds)
+            run_train_bench(
+                args.engine_config, args.env_config, args.agent_config, n, rounds=args.rounds, data_paths=paths
+            )
             for n in args.num_envs
         ]
         fmt = format_train_bench
@@ -119,6 +120,7 @@ def _bench(args: argparse.Namespace) -> int:
                 args.steps or 100,
                 rounds=args.rounds,
                 raw_mode=args.raw or "free",
+                data_paths=paths,
             )
             for n in args.num_envs
         ]
@@ -132,10 +134,10 @@ def _bench(args: argparse.Namespace) -> int:
 
 def _sim2sim(args: argparse.Namespace) -> int:
     from mimickit.tools.sim2sim import format_report, run_sim2sim
-    from mimickit.util.paths import set_data_dir
 
-    set_data_dir(args.data_dir)
-    report = run_sim2sim(args.arg_file, args.model_file, args.motion_file, tuple(args.engines), args.seconds)
+    report = run_sim2sim(
+        args.arg_file, args.model_file, args.motion_file, tuple(args.engines), args.seconds, DataPaths(args.data_dir)
+    )
     print(json.dumps(report) if args.json else format_report(report))
     return 0
 
@@ -158,14 +160,13 @@ def _plot(args: argparse.Namespace) -> int:
 
 def _video(args: argparse.Namespace) -> int:
     from mimickit.tools.video import VideoOptions, motion_video, policy_video
-    from mimickit.util.paths import set_data_dir
 
     if bool(args.motion) == bool(args.model_file) or bool(args.motion) != bool(args.char):
         raise MimicKitError("give either --model_file M --arg_file A, or --motion PATH --char MJCF")
     if args.model_file and not args.arg_file:
         raise MimicKitError("--model_file needs --arg_file (the env, agent and engine configs of the model)")
-    set_data_dir(args.data_dir)
-    opts = VideoOptions(args.seconds, args.width, args.height, Path(args.frame_png) if args.frame_png else None)
+    frame_png = Path(args.frame_png) if args.frame_png else None
+    opts = VideoOptions(args.seconds, args.width, args.height, frame_png, DataPaths(args.data_dir))
     if args.motion:
         info = motion_video(args.motion, args.char, args.out, opts)
     else:

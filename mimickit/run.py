@@ -48,7 +48,7 @@ from mimickit.torchrun_env import TorchrunEnv, check_master_port, node_devices, 
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import atomic_write_bytes, resolve_data_path, set_data_dir
+from mimickit.util.paths import PROJECT_DATA, DataPaths, atomic_write_bytes
 
 NO_LIMIT = int(np.iinfo(np.int64).max)
 REFUSAL_WAIT_S = 10.0
@@ -64,6 +64,8 @@ class RunInputs:
     agent_file: str | None
     motion_file: str | None
     """`--motion_file`, resolved (None: the env config's own clip or dataset)."""
+    data_paths: DataPaths = PROJECT_DATA
+    """Where the configs' `data/...` files are found (`--data_dir`, then the project's data)."""
 
 
 def default_devices() -> list[str]:
@@ -110,7 +112,6 @@ def run(
 
     args = ArgParser()
     args.load_args(argv)  # checked by main() (check_run_args) before any process started
-    set_data_dir(args.parse_string("data_dir", "") or None)
     mode = args.parse_string("mode", "train")
     inputs = resolve_inputs(args)
     resume = None
@@ -155,19 +156,22 @@ def check_resume_budget(model_file: str, max_samples: int) -> dict[str, Any] | N
     return {"model_file": str(Path(model_file).resolve()), "iteration": train_state["iteration"], "samples": samples}
 
 
-def resolve_inputs(args: ArgParser) -> RunInputs:
-    """The config files and `--motion_file`, each checked to exist (one error line otherwise)."""
+def resolve_inputs(args: ArgParser, data_paths: DataPaths | None = None) -> RunInputs:
+    """The config files and `--motion_file`, each checked to exist (one error line otherwise), found
+    by `data_paths` (by default `--data_dir`'s, then the project's data)."""
+    paths = data_paths or DataPaths(args.parse_string("data_dir", "") or None)
     motion = args.parse_string("motion_file", "")
     if args.has_key("motion_file") and not motion:
         raise MimicKitError("--motion_file needs a value (a .pkl clip or a dataset .yaml)")
-    motion_path = resolve_data_path(motion) if motion else None
+    motion_path = paths.resolve(motion) if motion else None
     if motion_path is not None and not motion_path.is_file():
         raise MimicKitError(f"--motion_file: file not found: {motion}")
     return RunInputs(
-        env_file=_config_path(args, "env_config", required=True) or "",
-        engine_file=_config_path(args, "engine_config"),
-        agent_file=_config_path(args, "agent_config"),
+        env_file=_config_path(args, "env_config", paths, required=True) or "",
+        engine_file=_config_path(args, "engine_config", paths),
+        agent_file=_config_path(args, "agent_config", paths),
         motion_file=str(motion_path) if motion_path is not None else None,
+        data_paths=paths,
     )
 
 
@@ -187,12 +191,13 @@ def build_run_env(inputs: RunInputs, num_envs: int, device: str) -> tuple[Any, d
     motion = getattr(env_cfg, "motion_file", None)
     info = {
         "env_name": env_cfg.env_name,
-        "char_file": str(resolve_data_path(env_cfg.char_file)),
-        "motion_file": str(resolve_data_path(motion)) if motion else None,
+        "char_file": str(inputs.data_paths.resolve(env_cfg.char_file)),
+        "motion_file": str(inputs.data_paths.resolve(motion)) if motion else None,
         "motion_file_from": None if not motion else ("--motion_file" if inputs.motion_file else "env_config"),
         "engine_name": engine_cfg.engine_name,
     }
-    return build_env_from_configs(env_cfg, engine_cfg, num_envs, device, visualize=False), info
+    env = build_env_from_configs(env_cfg, engine_cfg, num_envs, device, visualize=False, data_paths=inputs.data_paths)
+    return env, info
 
 
 def test_result(agent: Any, env: Any, episodes: int) -> dict[str, Any]:
@@ -359,13 +364,13 @@ def _one_line(e: BaseException) -> str:
     return first if isinstance(e, MimicKitError) else f"{e.__class__.__name__}: {first}".rstrip(": ")
 
 
-def _config_path(args: ArgParser, key: str, required: bool = False) -> str | None:
+def _config_path(args: ArgParser, key: str, data_paths: DataPaths, required: bool = False) -> str | None:
     value = args.parse_string(key, "")
     if not value:
         if required:
             raise MimicKitError(f"--{key} is required")
         return None
-    path = resolve_data_path(value)
+    path = data_paths.resolve(value)
     if not path.is_file():
         raise MimicKitError(f"--{key}: file not found: {value}")
     return str(path)

@@ -15,10 +15,6 @@ the action size against a character's DoF count.
 from __future__ import annotations
 
 import re
-import threading
-import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -28,24 +24,11 @@ from mimickit.learning.checkpoint import nonfinite_tensors, read_checkpoint
 from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, set_data_dir
+from mimickit.util.paths import PROJECT_ROOT, DataPaths
+from mimickit.util.warn import collect_warnings
 
 TRAIN_STATE_KEY = "_train_state"
 CONFIG_FILES = (ENV_CONFIG_FILE, ENGINE_CONFIG_FILE, AGENT_CONFIG_FILE)
-
-# `set_data_dir` is process-wide: builds that resolve `data/...` paths take turns.
-_DATA_DIR_LOCK = threading.RLock()
-
-
-@contextmanager
-def data_dir_for_build(data_dir: Path | None) -> Iterator[None]:
-    """Resolve `data/...` paths in `data_dir` (then the project's data) for the duration of a build."""
-    with _DATA_DIR_LOCK:
-        set_data_dir(data_dir)
-        try:
-            yield
-        finally:
-            set_data_dir(None)
 
 
 def load_state(path: Path) -> dict[str, Any]:
@@ -221,7 +204,8 @@ def configs_from_arg_file(arg_file: Path, data_dir: Path) -> dict[str, str]:
             continue
         rel = Path(value)
         rest = Path(*rel.parts[1:]) if rel.parts[0] == "data" else None
-        candidates = [data_dir / rest, PROJECT_DATA_DIR / rest] if rest is not None else [PROJECT_ROOT / rel]
+        # Not `DataPaths.resolve`: a server request names no file in its working folder.
+        candidates = [d / rest for d in DataPaths(data_dir).dirs()] if rest is not None else [PROJECT_ROOT / rel]
         hit = next((c for c in candidates if c.is_file()), None)
         if hit is None:
             raise MimicKitError(f"{arg_file}: --{name.removesuffix('.yaml')} {value}: file not found")
@@ -245,9 +229,8 @@ def env_spaces(env_file: Path, engine_file: Path | None, data_dir: Path | None) 
     )  # fmt: skip
     if key in _SPACES_CACHE:
         return _SPACES_CACHE[key]
-    with data_dir_for_build(data_dir), warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        env = build_env(env_file, engine_file, 1, "cpu", visualize=False)
+    with collect_warnings():  # the fit is the answer; the build's warnings show when it is rolled out
+        env = build_env(env_file, engine_file, 1, "cpu", visualize=False, data_paths=DataPaths(data_dir))
     try:
         spaces = (int(env.get_obs_space().shape[0]), int(env.get_action_space().shape[0]))
     finally:
@@ -293,8 +276,7 @@ def check_fit_char(path: Path, char_file: Path, shown: str) -> dict[str, Any]:
     from mimickit.anim.mjcf_char_model import load_char_model
 
     obs, act = sizes(load_state(path))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with collect_warnings():
         dofs = load_char_model(char_file).get_dof_size()
     message = fit_message((obs, act), (None, dofs), shown)
     return {

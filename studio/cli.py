@@ -14,12 +14,13 @@ import socket
 import sys
 import urllib.error
 import urllib.request
-import warnings
 from pathlib import Path
 
 import uvicorn
 
 from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import DataPaths
+from mimickit.util.warn import collect_warnings
 from studio.executors.base import EXECUTORS
 from studio.security import new_token
 from studio.settings import DEFAULT_TRAINER, DEMO_CLIP, Settings, parse_trainer
@@ -138,26 +139,24 @@ def sweep(args: argparse.Namespace) -> int:
 
 
 def export_replay(args: argparse.Namespace) -> int:
-    from mimickit.util.paths import resolve_data_path, set_data_dir
     from studio import replay  # imports viser, torch, mujoco: only when asked
 
     if bool(args.motion) == bool(args.model_file):
         raise MimicKitError("give either --motion CLIP [--char MJCF] or --model_file CHECKPOINT")
-    set_data_dir(args.data_dir)
+    paths = DataPaths(args.data_dir)
     replay.check_output(args.out)
     if args.motion:
-        clip = resolve_data_path(args.motion)
-        with warnings.catch_warnings(record=True) as caught:  # e.g. NaN columns read as 0: one line each
-            warnings.simplefilter("always")
-            char = resolve_data_path(args.char) if args.char else _guess_char(clip, args.data_dir)
+        clip = paths.resolve(args.motion)
+        with collect_warnings() as caught:  # e.g. NaN columns read as 0: one line each
+            char = paths.resolve(args.char) if args.char else _guess_char(clip, paths)
             info = replay.export_clip_replay(clip, char, args.out, follow=not args.no_follow)
-        for w in {str(w.message) for w in caught}:
-            print(f"warning: {w}", file=sys.stderr)
+        for message in caught:
+            print(f"warning: {message}", file=sys.stderr)
     else:
         from studio.rollout import source_for_checkpoint
 
-        configs = {k: resolve_data_path(v) if (v := getattr(args, k)) else None for k in CONFIG_ARGS}
-        source = source_for_checkpoint(resolve_data_path(args.model_file), **configs)
+        configs = {k: paths.resolve(v) if (v := getattr(args, k)) else None for k in CONFIG_ARGS}
+        source = source_for_checkpoint(paths.resolve(args.model_file), **configs)
         source.data_dir = source.data_dir or args.data_dir
         info = replay.export_policy_replay(source, args.out, seconds=args.seconds)
     print(f"wrote {info.path}: {info.kind}, {info.frames} poses at {info.fps:g} Hz ({info.duration:.2f} s), "
@@ -168,17 +167,16 @@ def export_replay(args: argparse.Namespace) -> int:
 CONFIG_ARGS = ("env_config", "agent_config", "engine_config")
 
 
-def _guess_char(clip: Path, data_dir: Path | None) -> Path:
+def _guess_char(clip: Path, paths: DataPaths) -> Path:
     """The character whose DoF count fits the clip (as the studio's library guesses it)."""
     from mimickit.anim.motion import load_motion
-    from mimickit.util.paths import resolve_data_path
     from studio.library import Library
 
-    library = Library(Settings(data_dir=data_dir).resolved())
+    library = Library(Settings(data_dir=paths.data_dir).resolved())
     shown = library.character_for_width(load_motion(clip).frame_dim, clip)
     if shown is None:
         raise MimicKitError(f"{clip}: no character in the data folders fits it; name one with --char")
-    return resolve_data_path(shown)
+    return paths.resolve(shown)
 
 
 def serve(args: argparse.Namespace) -> int:

@@ -7,7 +7,6 @@ playback is table look-ups. Shapes: T frames, J bodies, F feet, D DoFs.
 from __future__ import annotations
 
 import re
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.motion import LoopMode, Motion
 from mimickit.tools.motion_report import check_frame_dim
 from mimickit.util import torch_util as tu
+from mimickit.util.warn import collect_warnings
 from studio.parsing import read_motion
 
 CONTACT_HEIGHT = 0.02  # a foot whose lowest point is this close to the ground counts as in contact
@@ -67,8 +67,7 @@ class ClipPose:
 
 def pose_clip(clip_path: Path, char_path: Path) -> ClipPose:
     """Load a clip and a character and pose every frame; MimicKitError when they do not fit."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # NaN columns read as 0 are reported by the library panel
+    with collect_warnings():  # NaN columns read as 0 are reported by the library panel
         motion = read_motion(clip_path)  # a user's file: with the guarded loader's budget
         char = load_char_model(char_path)
     check_frame_dim(motion, char, clip_path)
@@ -78,8 +77,7 @@ def pose_clip(clip_path: Path, char_path: Path) -> ClipPose:
 def default_pose(char_path: Path) -> ClipPose:
     """The character in its MJCF default pose (every DoF 0, root unrotated) as a one-frame clip, lifted
     so that its lowest collision point touches the ground; MimicKitError when the MJCF does not load."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with collect_warnings():  # the library panel reports what the MJCF lacks
         char = load_char_model(char_path)
         ids, pts = body_surface_points(char, char.get_body_names())
     frame = np.zeros((1, 6 + char.get_dof_size()), dtype=np.float32)
@@ -104,8 +102,7 @@ def pose_motion(clip_path: Path, char_path: Path, motion: Motion, char: KinCharM
     feet = foot_bodies(char)
     low = np.zeros((motion.num_frames, len(feet)), dtype=np.float32)
     for i, name in enumerate(feet):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # it re-reads the MJCF: same warnings as above
+        with collect_warnings():  # it re-reads the MJCF: same warnings as above
             ids, pts = body_surface_points(char, [name])
         if len(ids):
             low[:, i] = lowest_point_z(char, ids, pts, body_pos, body_rot).numpy()

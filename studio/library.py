@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import threading
 import time
-import warnings
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 from typing import Any, TypeVar
@@ -24,6 +23,7 @@ from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_yaml_text, read_text_file
 from mimickit.util.errors import MimicKitError
+from mimickit.util.warn import collect_warnings
 from studio.clip_pose import default_pose
 from studio.parsing import read_motion
 from studio.security import PathError, confine, display_path
@@ -391,8 +391,7 @@ def _sha256(path: Path) -> str:
 
 def _character_info(path: Path) -> dict[str, Any]:
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with collect_warnings():  # dropped, as before: the panel scans every character
             char = load_char_model(path)
     except MimicKitError as e:
         return {"name": path.stem, "error": one_line(str(e))}
@@ -402,8 +401,7 @@ def _character_info(path: Path) -> dict[str, Any]:
 
 def _motion_info(path: Path) -> dict[str, Any]:
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # NaN columns are reported, not warned
+        with collect_warnings():  # NaN columns are reported, not warned
             m = read_motion(path, sanitize_nan=False, in_child=False)  # hundreds of files: see read_motion
     except MimicKitError as e:
         return {"error": one_line(str(e))}

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import threading
 import time
-import warnings
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,7 +35,9 @@ import torch
 
 from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, RunFolder
 from mimickit.util.errors import MimicKitError
-from studio.checkpoints import configs_beside, data_dir_for_build
+from mimickit.util.paths import DataPaths
+from mimickit.util.warn import collect_warnings
+from studio.checkpoints import configs_beside
 from studio.scene import SUPPORT_WINDOW_S, StudioScene
 
 HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
@@ -143,11 +144,11 @@ class Rollout:
         from mimickit.learning.agent_builder import build_agent
 
         self.source = source
-        with data_dir_for_build(source.data_dir), warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            self.env = build_env(source.env_config, source.engine_config, 1, "cpu", visualize=True)
+        paths = DataPaths(source.data_dir)  # the run's data folder: each rollout its own
+        with collect_warnings():  # dropped, as before; not `catch_warnings`, which swaps every thread's filters
+            self.env = build_env(source.env_config, source.engine_config, 1, "cpu", visualize=True, data_paths=paths)
             try:
-                self.agent = build_agent(source.agent_config, self.env, "cpu", verbose=False)
+                self.agent = build_agent(source.agent_config, self.env, "cpu", verbose=False, data_paths=paths)
                 self.agent.load(source.checkpoint)  # MimicKitError (one line) when it does not fit
             except BaseException:
                 self.close()

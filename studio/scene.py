@@ -16,7 +16,6 @@ from __future__ import annotations
 import copy
 import re
 import threading
-import warnings
 from pathlib import Path
 
 import mujoco
@@ -26,6 +25,7 @@ from mjviser import ViserMujocoScene
 from mjviser.conversions import merge_geoms
 
 from mimickit.anim.mjcf_loader import load_mjcf_model
+from mimickit.util.warn import collect_warnings
 from studio.clip_pose import ClipPose
 
 # Colours (RGB 0-1): the left side blue, the right side coral, the trunk sand; hands and feet darker.
@@ -161,8 +161,7 @@ class StudioScene:
     def _build_character(self, pose: ClipPose) -> None:
         self.server.scene.remove_by_name("/bodies")  # the previous character's mjviser nodes
         self.server.scene.remove_by_name("/fixed_bodies")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with collect_warnings():  # dropped, as before (meshes the MJCF lacks)
             model = load_mjcf_model(pose.char_path)
         colour_model(model)
         self._mj = ViserMujocoScene(self.server, model, num_envs=1)
@@ -216,9 +215,7 @@ class StudioScene:
             self._clear_rollout()
             self.mode = "rollout"
             view = rollout_view_model(model, ghost_bodies)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                self._mj = ViserMujocoScene(self.server, view, num_envs=1)
+            self._mj = ViserMujocoScene(self.server, view, num_envs=1)
             self._mj.camera_tracking_enabled = False  # we follow by moving the world (see module doc)
             ghost_view = copy.deepcopy(model)
             ghost_view.geom_rgba[:, :3] = np.array(GHOST_COLOR) / 255.0

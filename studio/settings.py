@@ -8,7 +8,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, default_output_root
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, DataPaths, default_output_root
 
 DEFAULT_TRAINER = [sys.executable, "-m", "mimickit.cli", "train"]
 DEMO_CLIP = PROJECT_DATA_DIR / "motions" / "humanoid_demo_squat.pkl"
@@ -53,10 +53,14 @@ class Settings:
         return self
 
     @property
+    def data_paths(self) -> DataPaths:
+        """How this server's builds find `data/...` files: the user's data folder, then the project's."""
+        return DataPaths(self.data_dir)
+
+    @property
     def data_dirs(self) -> list[Path]:
-        """The user's data folder first (it shadows the project's, as in `resolve_data_path`)."""
-        dirs = [self.data_dir] if self.data_dir else []
-        return [*dirs, PROJECT_DATA_DIR]
+        """The user's data folder first (it shadows the project's, as in `DataPaths.resolve`)."""
+        return self.data_paths.dirs()
 
     @property
     def arg_dirs(self) -> list[Path]:

@@ -12,7 +12,7 @@ from mimickit.envs.env_config import load_env_configs
 from mimickit.learning.agent_config import load_agent_config
 from mimickit.run_args import RUN_ARGS, check_run_args
 from mimickit.util.arg_parser import ArgParser
-from mimickit.util.paths import PROJECT_ROOT, resolve_data_path
+from mimickit.util.paths import PROJECT_DATA, PROJECT_ROOT
 
 ARG_FILES = sorted((PROJECT_ROOT / "args").glob("*_args.txt"))
 
@@ -36,7 +36,7 @@ def test_arg_file_names_known_args_and_valid_configs(arg_file: Path, tmp_path: P
     for key in ("env_config", "engine_config", "agent_config"):
         value = args.parse_string(key, "")
         if value:
-            paths[key] = resolve_data_path(value)
+            paths[key] = PROJECT_DATA.resolve(value)
             assert paths[key].is_file(), f"{arg_file.name}: --{key} {value} not found"
     assert "env_config" in paths, f"{arg_file.name}: no --env_config"
     load_env_configs(paths["env_config"], paths.get("engine_config"))

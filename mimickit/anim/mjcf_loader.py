@@ -13,12 +13,12 @@ whose mass came from a dropped geom (PI+'s fixed `head`: its mass is lost, the r
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import mujoco
 
 from mimickit.util.errors import MimicKitError
+from mimickit.util.warn import warn
 
 
 def load_mjcf_spec(path: str | Path) -> mujoco.MjSpec:
@@ -71,7 +71,7 @@ def _drop_missing_meshes(spec: mujoco.MjSpec, path: Path) -> None:
         note += f"; bodies with no collision geometry left: {', '.join(bare)}"
     if massless:
         note += f"; bodies whose mass came from dropped geoms: {', '.join(sorted(massless))}"
-    warnings.warn(f"{path}: {len(missing)} mesh file(s) missing under {meshdir}{note}", stacklevel=3)
+    warn(f"{path}: {len(missing)} mesh file(s) missing under {meshdir}{note}", stacklevel=3)
 
 
 def _bodies_without_collision(spec: mujoco.MjSpec) -> list[str]:

@@ -18,7 +18,6 @@ import itertools
 import math
 import pickle
 import struct
-import warnings
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
@@ -31,6 +30,7 @@ from mimickit.util.guarded import run_guarded
 from mimickit.util.limits import ClipLimits, env_var_for
 from mimickit.util.paths import atomic_write_bytes
 from mimickit.util.safe_pickle import PickleLimitError, UnsafePickleError, safe_loads
+from mimickit.util.warn import warn
 
 # The default file-size limit (MIMICKIT_MAX_CLIP_MB raises it for load_motion; converters use this).
 MAX_CLIP_BYTES = ClipLimits().max_file_bytes
@@ -341,7 +341,7 @@ def _nan_columns(frames: np.ndarray) -> tuple[int, ...]:
 
 def _sanitized(motion: Motion, source: str, sanitize_nan: bool) -> Motion:
     if motion.nan_columns and sanitize_nan:
-        warnings.warn(f"{source}: non-finite values in columns {list(motion.nan_columns)} replaced by 0", stacklevel=3)
+        warn(f"{source}: non-finite values in columns {list(motion.nan_columns)} replaced by 0", stacklevel=3)
         motion.frames = np.nan_to_num(motion.frames, nan=0.0, posinf=0.0, neginf=0.0)
     return motion
 

@@ -20,7 +20,7 @@ from mimickit.learning import mp_util
 from mimickit.util import torch_util as tu
 from mimickit.util.config import ConfigModel, load_config
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
+from mimickit.util.paths import PROJECT_DATA, DataPaths
 
 
 class DatasetEntry(ConfigModel):
@@ -44,9 +44,10 @@ class MotionFrame:
     dof_vel: torch.Tensor  # [n, D]
 
 
-def load_motion_list(motion_file: str | Path) -> list[tuple[Path, float]]:
-    """(clip path, weight) pairs: a dataset yaml lists clips with weights; anything else is one clip."""
-    path = resolve_data_path(motion_file)
+def load_motion_list(motion_file: str | Path, data_paths: DataPaths = PROJECT_DATA) -> list[tuple[Path, float]]:
+    """(clip path, weight) pairs: a dataset yaml lists clips with weights; anything else is one clip.
+    The file and a dataset's entries (`data/motions/...`) are found by `data_paths`."""
+    path = data_paths.resolve(motion_file)
     if path.suffix in (".yaml", ".yml"):
         cfg = load_config(DatasetConfig, path)
         if not cfg.motions:
@@ -55,7 +56,7 @@ def load_motion_list(motion_file: str | Path) -> list[tuple[Path, float]]:
         for i, entry in enumerate(cfg.motions):
             if entry.weight < 0:
                 raise MimicKitError(f"{path}: motions[{i}].weight must be >= 0, got {entry.weight}")
-            clip = resolve_data_path(entry.file)
+            clip = data_paths.resolve(entry.file)
             if not clip.is_file():
                 raise MimicKitError(f"{path}: motions[{i}].file not found: {entry.file}")
             out.append((clip, entry.weight))
@@ -109,6 +110,7 @@ class MotionLib:
         device: torch.device | str = "cpu",
         weights: list[float] | None = None,
         proc: tuple[int, int] | None = None,
+        data_paths: DataPaths = PROJECT_DATA,
     ) -> None:
         """A clip, a dataset yaml, or clips in memory with their weights (never split). A dataset is
         split across processes by `process_share`, as the reference does under several `--devices`:
@@ -117,7 +119,7 @@ class MotionLib:
         self.device = torch.device(device)
         if isinstance(motion_file, (str, Path)):
             rank, num_procs = proc or (mp_util.get_proc_rank(), mp_util.get_num_procs())
-            entries = load_motion_list(motion_file)
+            entries = load_motion_list(motion_file, data_paths)
             share = process_share(entries, rank, num_procs, motion_file)
             if num_procs > 1 and len(entries) > 1:
                 _report_share(motion_file, rank, num_procs, entries, share)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import abc
 import math
-import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -33,6 +32,7 @@ from mimickit.engines.engine_records import ObjLayout, ObjRecord
 from mimickit.util.config import ConfigModel, parse_config
 from mimickit.util.errors import MimicKitError
 from mimickit.util.registry import Entry, Registry
+from mimickit.util.warn import warn
 
 if TYPE_CHECKING:
     import mujoco
@@ -338,7 +338,7 @@ class Engine(abc.ABC):
         stable_freq = math.ceil(self._config.sim_freq * ratio[worst] / 2.0)
         joint = kin.joints[1 + int(kin.dof_joint_ids()[worst])]
         dof = f"{joint.name}[{worst - joint.dof_idx}]" if joint.dof_dim > 1 else joint.name
-        warnings.warn(
+        warn(
             f"control_mode pd_explicit: the explicit PD damping diverges at sim_freq {self._config.sim_freq} Hz "
             f"on '{kin.source}' (kd·dt/M = {ratio[worst]:.1f} at DoF {dof}, stable below 2); use a "
             f"sim_freq above {stable_freq} Hz or control_mode pos",

@@ -14,7 +14,6 @@ from mimickit.envs.env_config import CharEnvConfig
 from mimickit.envs.sim_env import SimEnv
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
 
 CHAR_COLOR = (0.35, 0.45, 0.7)
 
@@ -24,7 +23,7 @@ class CharEnv(SimEnv):
 
     # ----------------------------------------------------------- construction
     def _build_envs(self, config: CharEnvConfig, num_envs: int) -> None:
-        self._char_file = resolve_data_path(config.char_file)
+        self._char_file = self.data_paths.resolve(config.char_file)
         self._char_model = load_char_model(self._char_file, self.device)
         self._parse_init_pose(config.init_pose)
         for _ in range(num_envs):

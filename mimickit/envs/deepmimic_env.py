@@ -53,7 +53,7 @@ class DeepMimicEnv(CharEnv):
     def _build_envs(self, config: DeepMimicEnvConfig, num_envs: int) -> None:
         self._enable_ref_char = self._visualize and config.visualize_ref_char
         super()._build_envs(config, num_envs)
-        self._motion_lib = MotionLib(config.motion_file, self._char_model, self.device)
+        self._motion_lib = MotionLib(config.motion_file, self._char_model, self.device, data_paths=self.data_paths)
 
     def _build_env(self, env_id: int, config: DeepMimicEnvConfig) -> None:
         super()._build_env(env_id, config)

@@ -10,7 +10,6 @@ Adding an env: write its config class here and its env class in its own module, 
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -20,6 +19,7 @@ from mimickit.engines.engine import EngineConfig, parse_engine_config
 from mimickit.util.config import ConfigModel, load_yaml, parse_config
 from mimickit.util.errors import MimicKitError
 from mimickit.util.registry import Entry, Registry
+from mimickit.util.warn import warn
 
 if TYPE_CHECKING:
     from mimickit.envs.sim_env import SimEnv
@@ -202,7 +202,7 @@ def merge_engine_overrides(engine: dict[str, Any], override: dict[str, Any], env
             continue
         merged[key] = val
     if dropped:
-        warnings.warn(
+        warn(
             f"{env_file}: engine keys {dropped} belong to engine {override.get('engine_name', 'isaac')!r} "
             f"and are ignored for {engine.get('engine_name')!r}",
             stacklevel=2,

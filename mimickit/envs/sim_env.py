@@ -15,6 +15,7 @@ from mimickit.engines.engine import Engine, EngineConfig
 from mimickit.engines.engine_builder import build_engine
 from mimickit.envs.base_env import BaseEnv, BoxSpace, DoneFlags, EnvMode
 from mimickit.envs.env_config import SimEnvConfig
+from mimickit.util.paths import PROJECT_DATA, DataPaths
 from mimickit.util.timer import PhaseTimer
 
 
@@ -26,8 +27,10 @@ class SimEnv(BaseEnv):
         num_envs: int,
         device: torch.device | str = "cpu",
         visualize: bool = False,
+        data_paths: DataPaths = PROJECT_DATA,
     ) -> None:
         super().__init__(num_envs, device)
+        self.data_paths = data_paths  # where the configs' `data/...` files are found
         self.profiler = PhaseTimer()
         self.config = env_config
         self.engine_config = engine_config

@@ -20,7 +20,6 @@ from mimickit.engines.engine import ObjType
 from mimickit.envs.amp_env import AMPEnv
 from mimickit.envs.env_config import TaskLocationEnvConfig, TaskSteeringEnvConfig
 from mimickit.util import torch_util as tu
-from mimickit.util.paths import resolve_data_path
 
 MARKER_COLOR = (0.8, 0.3, 0.1)
 
@@ -36,7 +35,7 @@ class AMPTaskEnv(AMPEnv, abc.ABC):
             self._marker_id = self._engine.create_obj(
                 env_id=env_id,
                 obj_type=ObjType.rigid,
-                asset_file=str(resolve_data_path(self.marker_file)),
+                asset_file=str(self.data_paths.resolve(self.marker_file)),
                 name="marker",
                 is_visual=True,
                 color=MARKER_COLOR,

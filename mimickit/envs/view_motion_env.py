@@ -25,7 +25,7 @@ class ViewMotionEnv(CharEnv):
 
     def _build_envs(self, config: ViewMotionEnvConfig, num_envs: int) -> None:
         super()._build_envs(config, num_envs)
-        self._motion_lib = MotionLib(config.motion_file, self._char_model, self.device)
+        self._motion_lib = MotionLib(config.motion_file, self._char_model, self.device, data_paths=self.data_paths)
         self._motion_ids = torch.arange(num_envs, device=self.device) % self._motion_lib.num_motions()
 
     def _build_character(self, env_id: int) -> int:

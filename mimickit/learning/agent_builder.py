@@ -16,14 +16,20 @@ from mimickit.learning import mp_util
 from mimickit.learning.agent_config import AGENTS, BaseAgentConfig, DummyAgentConfig, load_agent_config
 from mimickit.learning.base_agent import BaseAgent
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
+from mimickit.util.paths import DataPaths
 
 
 def build_agent(
-    agent_file: str | Path | None, env: BaseEnv, device: torch.device | str = "cpu", verbose: bool = True
+    agent_file: str | Path | None,
+    env: BaseEnv,
+    device: torch.device | str = "cpu",
+    verbose: bool = True,
+    data_paths: DataPaths | None = None,
 ) -> BaseAgent:
-    """The agent described by `agent_file` for `env`, on `device`; prints the parameter count (rank 0)."""
-    config = load_agent_config(resolve_data_path(agent_file)) if agent_file else DummyAgentConfig()
+    """The agent described by `agent_file` for `env`, on `device`; prints the parameter count (rank 0).
+    A `data/agents/...` name is found by `data_paths`, by default the env's."""
+    paths = data_paths or getattr(env, "data_paths", None) or DataPaths()
+    config = load_agent_config(paths.resolve(agent_file)) if agent_file else DummyAgentConfig()
     agent = build_agent_from_config(config, env, device)
     if verbose and mp_util.is_root_proc():
         print(f"Total parameter count: {agent.get_num_params()}", file=sys.stderr, flush=True)

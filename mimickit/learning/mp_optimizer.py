@@ -8,7 +8,6 @@ process still holds rank 0's parameters. Parameters are broadcast from rank 0 on
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Iterable
 from typing import Any
 
@@ -16,6 +15,7 @@ import torch
 
 from mimickit.learning import mp_util
 from mimickit.learning.agent_config import OptimizerConfig
+from mimickit.util.warn import warn
 
 
 class MPOptimizer:
@@ -27,7 +27,7 @@ class MPOptimizer:
         self._optimizer = _build_torch_optimizer(config, self._params)
         self._steps = 0
         if config.use_amp:
-            warnings.warn("use_amp (mixed precision) is not supported; training in float32", stacklevel=2)
+            warn("use_amp (mixed precision) is not supported; training in float32", stacklevel=2)
         self.sync()
 
     def step(self, loss: torch.Tensor) -> None:

@@ -22,8 +22,9 @@ from mimickit.engines.engine import ControlMode
 from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.env_builder import build_env
 from mimickit.util.errors import MimicKitError
-
+from mimickit.util.paths import PROJECT_DATA, DataPaths
 from mimickit.util.threads import torch_threads
+
 RAW_MODES = ("free", "replay")
 
 
@@ -35,12 +36,13 @@ def run_bench(
     warmup: int = 10,
     rounds: int = 5,
     raw_mode: str = "free",
+    data_paths: DataPaths = PROJECT_DATA,
 ) -> dict[str, Any]:
     """Env steps and raw rollout calls alternate in `rounds` rounds of steps/rounds control steps each,
     so a load that comes and goes on a shared machine weighs on both figures alike."""
     if raw_mode not in RAW_MODES:
         raise MimicKitError(f"raw mode {raw_mode!r}: choose one of {', '.join(RAW_MODES)}")
-    env = build_env(env_config, engine_config, num_envs, "cpu")
+    env = build_env(env_config, engine_config, num_envs, "cpu", data_paths=data_paths)
     one_step = random_action_step(env)
     env.reset()
     engine = env.engine

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import PROJECT_DATA, DataPaths
 
 DEFAULT_EPISODES = 8
 MAX_DEFAULT_ENVS = 16
@@ -63,31 +64,30 @@ def evaluate(arg_file: str, model_file: str, opts: EvalOptions) -> dict[str, Any
     (arguments, configs, a clip, a dataset or a checkpoint), before any clip runs where it can be found."""
     from mimickit import run
     from mimickit.run_args import check_run_args
-    from mimickit.util.paths import set_data_dir
 
     for name, value in (("--episodes", opts.episodes), ("--num_envs", opts.num_envs or 1)):
         if value < 1:
             raise MimicKitError(f"{name} must be at least 1, got {value}")
-    set_data_dir(opts.data_dir)
+    paths = DataPaths(opts.data_dir)
     num_envs = opts.num_envs or min(opts.episodes, MAX_DEFAULT_ENVS)
-    args = _run_args(arg_file, model_file, opts, num_envs)
+    args = _run_args(arg_file, model_file, opts, num_envs, paths)
     check_run_args(args, probe_out_dir=False)  # the arg file's keys, the counts, --model_file
-    inputs = run.resolve_inputs(args)
+    inputs = run.resolve_inputs(args, paths)
     given = args.parse_string("motion_file", "") or None  # --motion_file, or the arg file's
-    clips = dataset_clips(inputs.motion_file or _env_motion_file(inputs), given=given)
+    clips = dataset_clips(inputs.motion_file or _env_motion_file(inputs), given=given, data_paths=paths)
     _check_clips(clips)
     rows = [_eval_clip(inputs, model_file, clip, num_envs, opts) for clip in clips]
     return {"rows": rows, "mean": weighted_mean(rows)}
 
 
-def _run_args(arg_file: str, model_file: str, opts: EvalOptions, num_envs: int):  # -> ArgParser
+def _run_args(arg_file: str, model_file: str, opts: EvalOptions, num_envs: int, data_paths: DataPaths):  # -> ArgParser
     from mimickit.util.arg_parser import ArgParser
 
     argv = ["--arg_file", arg_file, "--mode", "test", "--model_file", model_file]
     argv += ["--num_envs", str(num_envs), "--test_episodes", str(opts.episodes), "--rand_seed", str(opts.rand_seed)]
     if opts.motion_file is not None:
         argv += ["--motion_file", opts.motion_file]
-    args = ArgParser()
+    args = ArgParser(data_paths)
     args.load_args(argv)
     return args
 
@@ -102,15 +102,15 @@ def _env_motion_file(inputs: Any) -> str:
     return motion
 
 
-def dataset_clips(motion_file: str, given: str | None = None) -> list[EvalClip]:
+def dataset_clips(motion_file: str, given: str | None = None, data_paths: DataPaths = PROJECT_DATA) -> list[EvalClip]:
     """The clips of a dataset yaml (each entry, in order, duplicates kept) or the one clip `motion_file`;
-    `given` is how the user wrote a single clip's path (the name of its row)."""
+    `given` is how the user wrote a single clip's path (the name of its row); `data_paths` finds
+    `data/...` names."""
     from mimickit.anim.motion_lib import DatasetConfig, load_motion_list
     from mimickit.util.config import load_config
-    from mimickit.util.paths import resolve_data_path
 
-    entries = load_motion_list(motion_file)  # checks every entry's file exists, one line naming it
-    path = resolve_data_path(motion_file)
+    entries = load_motion_list(motion_file, data_paths)  # checks every entry's file exists, one line naming it
+    path = data_paths.resolve(motion_file)
     if path.suffix in (".yaml", ".yml"):
         names = [e.file for e in load_config(DatasetConfig, path).motions]
     else:

@@ -20,7 +20,7 @@ from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.motion import LoopMode, Motion
 from mimickit.anim.motion_resample import ROOT_ROT_COL, char_expmap_columns, resample_motion
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
+from mimickit.util.paths import PROJECT_DATA, DataPaths
 
 FORMATS = ("auto", "deepmimic", "amass", "gmr")
 SMPL_CHAR = "data/assets/smpl/smpl.xml"
@@ -39,6 +39,7 @@ class ConvertOptions:
     up: str = "z"  # amass: the input world's up axis
     input_fps: float | None = None  # amass: when the file has no frame rate
     root_rot_order: str = "xyzw"  # gmr
+    data_paths: DataPaths = PROJECT_DATA  # where `data/...` names (the SMPL character) are found
 
 
 @dataclass
@@ -98,7 +99,7 @@ def _convert(path: Path, fmt: str, opts: ConvertOptions) -> tuple[Motion, list[i
     if fmt == "amass":
         from mimickit.tools.smpl_convert import convert_smpl, load_amass_npz
 
-        char = _smpl_char(opts.char)
+        char = _smpl_char(opts.char, opts.data_paths)
         poses = load_amass_npz(path, input_fps=opts.input_fps)
         motion = convert_smpl(poses, char, up=opts.up, z_correction=opts.z_correction)
         return motion, char_expmap_columns(char)
@@ -112,8 +113,8 @@ def _convert(path: Path, fmt: str, opts: ConvertOptions) -> tuple[Motion, list[i
     raise MimicKitError(f"unknown format '{fmt}'; one of {', '.join(FORMATS)}")
 
 
-def _smpl_char(char: str | None) -> KinCharModel:
-    path = resolve_data_path(char or SMPL_CHAR)
+def _smpl_char(char: str | None, data_paths: DataPaths) -> KinCharModel:
+    path = data_paths.resolve(char or SMPL_CHAR)
     if not path.is_file():
         if char:
             raise MimicKitError(f"character file not found: {char}")

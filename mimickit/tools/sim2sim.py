@@ -26,7 +26,7 @@ from mimickit.envs.sim_env import SimEnv
 from mimickit.learning.agent_builder import build_agent
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
+from mimickit.util.paths import PROJECT_DATA, DataPaths
 
 ENGINE_NAMES = ("mujoco", "newton")
 
@@ -48,13 +48,13 @@ class _Run:
     body_err: list[float] = field(default_factory=list)
 
 
-def _arg_configs(arg_file: str) -> tuple[str, str | None, str | None]:
-    args = ArgParser()
-    args.load_file(str(resolve_data_path(arg_file)))
+def _arg_configs(arg_file: str, data_paths: DataPaths) -> tuple[str, str | None, str | None]:
+    args = ArgParser(data_paths)
+    args.load_file(arg_file)
 
     def path(key: str) -> str | None:
         value = args.parse_string(key, "")
-        return str(resolve_data_path(value)) if value else None
+        return str(data_paths.resolve(value)) if value else None
 
     env_file = path("env_config")
     if env_file is None:
@@ -62,18 +62,20 @@ def _arg_configs(arg_file: str) -> tuple[str, str | None, str | None]:
     return env_file, path("engine_config"), path("agent_config")
 
 
-def _make_run(engine: str, arg_file: str, model_file: str | None, motion_file: str | None) -> _Run:
-    env_file, engine_file, agent_file = _arg_configs(arg_file)
+def _make_run(
+    engine: str, arg_file: str, model_file: str | None, motion_file: str | None, data_paths: DataPaths
+) -> _Run:
+    env_file, engine_file, agent_file = _arg_configs(arg_file, data_paths)
     env_cfg, engine_cfg = load_env_configs(env_file, engine_file)
     if not hasattr(env_cfg, "motion_file"):
         raise MimicKitError(f"{env_file}: sim2sim needs an env with a reference motion (deepmimic, add, amp)")
     updates: dict[str, Any] = {"rand_reset": False}  # both engines start at clip time 0
     if motion_file:
-        updates["motion_file"] = str(resolve_data_path(motion_file))
+        updates["motion_file"] = str(data_paths.resolve(motion_file))
     env_cfg = env_cfg.model_copy(update=updates)
     # The arg file's physics (rates, control mode) with only the engine swapped.
     engine_cfg = engine_cfg.model_copy(update={"engine_name": engine})
-    env = build_env_from_configs(env_cfg, engine_cfg, 1)
+    env = build_env_from_configs(env_cfg, engine_cfg, 1, data_paths=data_paths)
     agent = None
     if model_file:
         agent = build_agent(agent_file, env, verbose=False)
@@ -122,13 +124,15 @@ def run_sim2sim(
     motion_file: str | None = None,
     engines: tuple[str, str] = ENGINE_NAMES,
     seconds: float = 5.0,
+    data_paths: DataPaths = PROJECT_DATA,
 ) -> dict[str, Any]:
-    """Run both engines and return the report (see the module docstring); series are lists per step."""
+    """Run both engines and return the report (see the module docstring); series are lists per step.
+    `data/...` paths (the arg file's, its configs' and `motion_file`) are found by `data_paths`."""
     if (model_file is None) == (motion_file is None):
         raise MimicKitError("sim2sim: give exactly one of --model_file (a policy) or --motion_file (PD tracking)")
     if len(engines) != 2 or len(set(engines)) != 2:
         raise MimicKitError(f"sim2sim compares two different engines, got {list(engines)}")
-    runs = [_make_run(e, arg_file, model_file, motion_file) for e in engines]
+    runs = [_make_run(e, arg_file, model_file, motion_file, data_paths) for e in engines]
     dt = runs[0].env.engine.get_timestep()
     for _ in range(round(seconds / dt)):
         live = [r for r in runs if r.alive]

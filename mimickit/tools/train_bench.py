@@ -22,16 +22,23 @@ import torch
 from mimickit.envs.env_builder import build_env
 from mimickit.learning.agent_builder import build_agent
 from mimickit.tools.bench import random_action_step
-
+from mimickit.util.paths import PROJECT_DATA, DataPaths
 from mimickit.util.threads import torch_threads
+
 PHASES = ("sim", "inference", "update", "other")
 
 
 def run_train_bench(
-    engine_config: str, env_config: str, agent_config: str, num_envs: int, rounds: int = 5, warmup: int = 1
+    engine_config: str,
+    env_config: str,
+    agent_config: str,
+    num_envs: int,
+    rounds: int = 5,
+    warmup: int = 1,
+    data_paths: DataPaths = PROJECT_DATA,
 ) -> dict[str, Any]:
     """`rounds` alternating env-only and train rounds after `warmup` untimed ones (first-call allocations)."""
-    env = build_env(env_config, engine_config, num_envs, "cpu")
+    env = build_env(env_config, engine_config, num_envs, "cpu", data_paths=data_paths)
     agent = build_agent(agent_config, env, "cpu", verbose=False)
     steps = agent.config.steps_per_iter
     one_step = random_action_step(env)

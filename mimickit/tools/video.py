@@ -37,7 +37,7 @@ from mimickit.run import _config_path, seed_everything
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_config, parse_config
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import PROJECT_DATA_DIR
+from mimickit.util.paths import PROJECT_DATA, PROJECT_DATA_DIR, DataPaths
 
 GL_BACKENDS = ("egl", "osmesa")
 GHOST_ALPHA = 0.4
@@ -64,6 +64,8 @@ class VideoOptions:
     height: int = 240
     frame_png: Path | None = None
     """Also save the last frame as a PNG."""
+    data_paths: DataPaths = PROJECT_DATA
+    """Where `data/...` names (the clip, the character, the arg file's configs) are found."""
 
     def num_frames(self, fps: float) -> int:
         return max(1, round(self.seconds * fps))
@@ -239,7 +241,7 @@ def motion_video(motion_file: str | Path, char_file: str | Path, out: str | Path
     fields = {"env_name": "view_motion", "char_file": str(char_file), "motion_file": str(motion_file)}
     env_cfg = parse_config(ViewMotionEnvConfig, {**fields, "episode_length": opts.seconds}, "mimickit video")
     engine_cfg = load_config(EngineConfig, PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml")
-    env = ViewMotionEnv(env_cfg, engine_cfg, 1, "cpu")
+    env = ViewMotionEnv(env_cfg, engine_cfg, 1, "cpu", data_paths=opts.data_paths)
     try:
         view = env.engine.mujoco_view(0)
         model, char = view.model, view.objects[env.get_char_id()].body_ids
@@ -271,13 +273,14 @@ def policy_video(
     """The deterministic policy of `model_file` in the env and agent of `arg_file` (one env)."""
     out = Path(out)
     _check_output(out, opts)
-    args = ArgParser()
+    paths = opts.data_paths
+    args = ArgParser(paths)
     args.load_args(["--arg_file", str(arg_file), "--rand_seed", str(seed)])
-    env_file = _config_path(args, "env_config", required=True)
-    engine_file, agent_file = _config_path(args, "engine_config"), _config_path(args, "agent_config")
+    env_file = _config_path(args, "env_config", paths, required=True)
+    engine_file, agent_file = _config_path(args, "engine_config", paths), _config_path(args, "agent_config", paths)
     backend = select_gl_backend()
     seed_everything(args, 0)  # same seed, same start time in the clip, same video
-    env = build_env(env_file, engine_file, 1, "cpu", visualize=True)  # visualize: the env adds the ghost
+    env = build_env(env_file, engine_file, 1, "cpu", visualize=True, data_paths=paths)  # the env adds the ghost
     try:
         agent = build_agent(agent_file, env, "cpu", verbose=False)
         agent.load(model_file)

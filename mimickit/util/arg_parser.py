@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from mimickit.util.config import read_text_file
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import resolve_data_path
+from mimickit.util.paths import PROJECT_DATA, DataPaths
 
 _TRUE = {"true", "True", "1", "T", "t"}
 FALSE_VALUES = frozenset({"false", "False", "0", "F", "f"})
@@ -23,7 +23,8 @@ MAX_ARG_FILE_BYTES = 1 << 20
 
 
 class ArgParser:
-    def __init__(self) -> None:
+    def __init__(self, data_paths: DataPaths = PROJECT_DATA) -> None:
+        self._data_paths = data_paths  # where an arg file named `args/...` or `data/...` is found
         self._table: dict[str, list[str]] = {}
         self._sources: dict[str, str] = {}
 
@@ -37,7 +38,7 @@ class ArgParser:
             self.load_file(arg_file)
 
     def load_file(self, path: str) -> None:
-        p = resolve_data_path(path)  # `args/x.txt` also names the project's own, from any folder
+        p = self._data_paths.resolve(path)  # `args/x.txt` also names the project's own, from any folder
         if not p.is_file():
             raise MimicKitError(f"arg file not found: {path}")
         tokens: list[str] = []

@@ -4,6 +4,8 @@ MimicKit configs name files relative to the MimicKit repository root, e.g.
 `data/assets/humanoid/humanoid.xml`. A path that starts with `data/` is looked up in the user's data
 folder (`--data_dir`) first and then in the project's own `data/`; other relative paths are taken
 relative to the working directory, then the data folder, then the project's root (`args/...`).
+`DataPaths` is that lookup for one data folder; builders are handed one (the project's data alone,
+`PROJECT_DATA`, by default).
 
 The project's files (`data/`, `args/`, `web/`) sit at the top of the source tree, where a checkout and an
 editable install read them. A wheel cannot place folders beside site-packages, so `setup.py` copies them
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
@@ -35,42 +38,51 @@ def default_output_root() -> Path:
     return Path.cwd() if INSTALLED else IMPORT_ROOT
 
 
-_data_dirs: list[Path] = []
+@dataclass(frozen=True)
+class DataPaths:
+    """Where `data/...` and other relative paths are looked up (the order is the module docstring's).
+
+    Immutable, so one value can be shared by threads; a build takes the one it was given (`--data_dir`
+    of a run, the studio's data folder), never a process-wide setting."""
+
+    data_dir: Path | None = None
+    """A user's MimicKit data folder (`motions/`, `assets/`, ...), looked up before the project's."""
+
+    def __post_init__(self) -> None:
+        if self.data_dir is not None and str(self.data_dir):
+            object.__setattr__(self, "data_dir", Path(self.data_dir).expanduser().resolve())
+        else:  # "" (an unset `--data_dir`) is no folder, not the working directory
+            object.__setattr__(self, "data_dir", None)
+
+    def dirs(self) -> list[Path]:
+        """The data folders, first to last: the user's (if any), then the project's."""
+        dirs = [self.data_dir] if self.data_dir is not None else []
+        return dirs if PROJECT_DATA_DIR in dirs else [*dirs, PROJECT_DATA_DIR]
+
+    def resolve(self, path: str | Path) -> Path:
+        """The first existing candidate for `path`; the first candidate if none exists (so that an
+        error names where it was looked for first). Absolute paths are returned as they are."""
+        p = Path(path).expanduser()
+        if p.is_absolute():
+            return p
+        candidates: list[Path] = []
+        parts = p.parts
+        if parts and parts[0] == "data":
+            rest = Path(*parts[1:]) if len(parts) > 1 else Path()
+            candidates += [d / rest for d in self.dirs()]
+            candidates.append(Path.cwd() / p)
+        else:
+            candidates.append(Path.cwd() / p)
+            candidates += [d / p for d in self.dirs()]
+            candidates.append(PROJECT_ROOT / p)
+        for c in candidates:
+            if c.exists():
+                return c
+        return candidates[0]
 
 
-def set_data_dir(path: str | Path | None) -> None:
-    """Make `path` the first place `data/...` paths are looked up (the project's data stays second)."""
-    _data_dirs.clear()
-    if path:
-        _data_dirs.append(Path(path).expanduser().resolve())
-
-
-def data_dirs() -> list[Path]:
-    dirs = list(_data_dirs)
-    if PROJECT_DATA_DIR not in dirs:
-        dirs.append(PROJECT_DATA_DIR)
-    return dirs
-
-
-def resolve_data_path(path: str | Path) -> Path:
-    """The first existing candidate for `path`; the first candidate if none exists."""
-    p = Path(path).expanduser()
-    if p.is_absolute():
-        return p
-    candidates: list[Path] = []
-    parts = p.parts
-    if parts and parts[0] == "data":
-        rest = Path(*parts[1:]) if len(parts) > 1 else Path()
-        candidates += [d / rest for d in data_dirs()]
-        candidates.append(Path.cwd() / p)
-    else:
-        candidates.append(Path.cwd() / p)
-        candidates += [d / p for d in data_dirs()]
-        candidates.append(PROJECT_ROOT / p)
-    for c in candidates:
-        if c.exists():
-            return c
-    return candidates[0]
+PROJECT_DATA = DataPaths()
+"""The project's own data only: the default of every builder that is given no data folder."""
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

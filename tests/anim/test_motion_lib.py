@@ -105,13 +105,10 @@ def test_wrong_frame_width_for_character(char, tmp_path):
 
 
 def test_official_dataset_yaml_loads(char, test_data, monkeypatch):
-    from mimickit.util.paths import set_data_dir
+    from mimickit.util.paths import DataPaths
 
-    set_data_dir(test_data)
-    try:
-        lib = MotionLib("data/datasets/dataset_go2_locomotion.yaml", load_char_model(test_data / "assets/go2/go2.xml"))
-    finally:
-        set_data_dir(None)
+    go2 = load_char_model(test_data / "assets/go2/go2.xml")
+    lib = MotionLib("data/datasets/dataset_go2_locomotion.yaml", go2, data_paths=DataPaths(test_data))
     assert lib.num_motions() == 7
     w = lib.get_motion_weights()
     assert w.max().item() == pytest.approx(5 / 11)

@@ -26,7 +26,8 @@ from mimickit.envs.view_motion_env import ViewMotionEnv
 from mimickit.learning.agent_builder import build_agent
 from mimickit.util import torch_util as tu
 from mimickit.util.arg_parser import ArgParser
-from mimickit.util.paths import PROJECT_ROOT, set_data_dir
+from mimickit.util.paths import PROJECT_ROOT, DataPaths
+from tests import conftest
 
 # The Go2's visual meshes are not in MimicKit's data; the loader drops them with a warning (tested in anim/).
 pytestmark = [pytest.mark.slow, pytest.mark.filterwarnings(r"ignore:.*mesh file\(s\) missing:UserWarning")]
@@ -63,10 +64,12 @@ CHARS = {
 
 @pytest.fixture(scope="module", autouse=True)
 def mimickit_data(test_data: Path) -> Iterator[Path]:
-    """`data/...` paths of the env yamls resolve in the MimicKit data folder, as with `--data_dir`."""
-    set_data_dir(test_data)
+    """MimicKit's data folder (the module is skipped without one)."""
     yield test_data
-    set_data_dir(None)
+
+
+DATA = DataPaths(conftest.test_data_dir())
+"""`data/...` paths of the env yamls resolve in the MimicKit data folder, as with `--data_dir`."""
 
 
 def env_file(kind: str, char: str) -> Path:
@@ -77,13 +80,15 @@ def char_env(char: str, num_envs: int) -> CharEnv:
     """A plain CharEnv (init pose, PD, reward 1) with the character settings of the DeepMimic yaml."""
     env_cfg, engine_cfg = load_env_configs(env_file("deepmimic", char), ENGINE)
     fields = {k: getattr(env_cfg, k) for k in CharEnvConfig.model_fields}
-    return CharEnv(CharEnvConfig(**dict(fields, env_name="char", episode_length=100.0)), engine_cfg, num_envs)
+    return CharEnv(
+        CharEnvConfig(**dict(fields, env_name="char", episode_length=100.0)), engine_cfg, num_envs, data_paths=DATA
+    )
 
 
 @pytest.mark.parametrize("char", CHARS)
 def test_observation_action_and_disc_sizes(char: str) -> None:
     c = CHARS[char]
-    dm = build_env(env_file("deepmimic", char), ENGINE, 2)
+    dm = build_env(env_file("deepmimic", char), ENGINE, 2, data_paths=DATA)
     kin = dm.char_model
     assert (kin.get_num_joints(), kin.get_dof_size()) == (c.bodies, c.dofs)
     joints = 6 * (c.bodies - 1)  # tan-norm per non-root joint
@@ -92,7 +97,7 @@ def test_observation_action_and_disc_sizes(char: str) -> None:
     assert char_obs == c.char_obs and char_obs + 3 * tar_step == c.obs
     assert dm.get_obs_space().shape == (c.obs,)
     assert dm.get_action_space().shape == (c.dofs,)
-    amp = build_env(env_file("amp", char), ENGINE, 2)
+    amp = build_env(env_file("amp", char), ENGINE, 2, data_paths=DATA)
     assert isinstance(amp, AMPEnv)
     assert amp.get_obs_space().shape == (c.char_obs,)
     disc_step = 3 + 6 + joints + 3 * c.key_bodies + 3 + 3 + c.dofs
@@ -106,7 +111,7 @@ def test_observation_action_and_disc_sizes(char: str) -> None:
 @pytest.mark.parametrize("char", CHARS)
 def test_add_env_sizes_and_reference_state_differences(char: str) -> None:
     c = CHARS[char]
-    env = build_env(env_file("add", char), ENGINE, 2)
+    env = build_env(env_file("add", char), ENGINE, 2, data_paths=DATA)
     assert isinstance(env, ADDEnv) and env.get_num_disc_obs_steps() == 1
     # DeepMimic's observation and actions; disc obs per spec §5.6: root pos, root rot tan-norm, (J-1) joint
     # tan-norms, every body's position, root vel, root ang vel, dof vel.
@@ -127,7 +132,7 @@ def test_add_env_sizes_and_reference_state_differences(char: str) -> None:
 
 
 def test_g1_is_hinge_only_and_its_actions_are_zero_centred() -> None:
-    env = build_env(env_file("deepmimic", "g1"), ENGINE, 1)
+    env = build_env(env_file("deepmimic", "g1"), ENGINE, 1, data_paths=DATA)
     kin = env.char_model
     assert {j.type for j in kin.joints[1:]} <= {JointType.HINGE, JointType.FIXED}
     low, high = env.get_action_space().low, env.get_action_space().high
@@ -135,7 +140,7 @@ def test_g1_is_hinge_only_and_its_actions_are_zero_centred() -> None:
     np.testing.assert_allclose(low, -high)
     np.testing.assert_allclose(high, 1.4 * np.maximum(np.abs(dof_low), np.abs(dof_high)), rtol=1e-6)
     # The Go2 keeps MimicKit's default: bounds centred on the middle of each joint range.
-    go2 = build_env(env_file("deepmimic", "go2"), ENGINE, 1)
+    go2 = build_env(env_file("deepmimic", "go2"), ENGINE, 1, data_paths=DATA)
     lo, hi = go2.char_model.dof_limits()
     np.testing.assert_allclose((go2.get_action_space().low + go2.get_action_space().high) / 2, (lo + hi) / 2, atol=1e-6)
 
@@ -204,7 +209,9 @@ def test_every_clip_plays_through_view_motion_as_kinematic_fk(char: str, mimicki
     dataset = tmp_path / "all_clips.yaml"
     dataset.write_text("motions:\n" + "".join(f'  - file: "{c}"\n    weight: 1.0\n' for c in clips))
     env_cfg, engine_cfg = load_env_configs(env_file("view_motion", char), ENGINE)
-    env = ViewMotionEnv(env_cfg.model_copy(update={"motion_file": str(dataset)}), engine_cfg, len(clips))
+    env = ViewMotionEnv(
+        env_cfg.model_copy(update={"motion_file": str(dataset)}), engine_cfg, len(clips), data_paths=DATA
+    )
     env.reset()
     lib, kin = env.motion_lib, env.char_model
     ids = torch.arange(len(clips)) % lib.num_motions()
@@ -220,7 +227,7 @@ def test_every_clip_plays_through_view_motion_as_kinematic_fk(char: str, mimicki
 
 @pytest.mark.parametrize("char", CHARS)
 def test_reference_state_init_scores_one(char: str) -> None:
-    env = build_env(env_file("deepmimic", char), ENGINE, 8)
+    env = build_env(env_file("deepmimic", char), ENGINE, 8, data_paths=DATA)
     _, info = env.reset()
     env._update_info()  # the reward terms a step computes, for the reset state itself
     for name, value in info["reward_terms"].items():
@@ -236,7 +243,10 @@ def test_arg_files_build_their_env_and_agent(arg_file: str) -> None:
     args = ArgParser()
     args.load_args(["--arg_file", str(PROJECT_ROOT / "args" / arg_file)])
     env = build_env(
-        PROJECT_ROOT / args.parse_string("env_config"), PROJECT_ROOT / args.parse_string("engine_config"), 2
+        PROJECT_ROOT / args.parse_string("env_config"),
+        PROJECT_ROOT / args.parse_string("engine_config"),
+        2,
+        data_paths=DATA,
     )
     agent = build_agent(PROJECT_ROOT / args.parse_string("agent_config"), env, verbose=False)
     assert agent.get_obs_size() == env.get_obs_space().shape[0]

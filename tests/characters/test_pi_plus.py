@@ -19,9 +19,10 @@ from mimickit.envs.env_config import load_env_configs
 from mimickit.envs.view_motion_env import ViewMotionEnv
 from mimickit.learning.agent_builder import build_agent
 from mimickit.util.arg_parser import ArgParser
-from mimickit.util.paths import PROJECT_ROOT, set_data_dir
+from mimickit.util.paths import PROJECT_ROOT, DataPaths
 from studio.library import Library
 from studio.settings import Settings
+from tests import conftest
 from tests.studio.conftest import StudioProcess
 
 # PI+'s meshes are not in MimicKit's data; the loader drops them with a warning (checked below).
@@ -36,12 +37,14 @@ BODIES = 24  # base_link, the fixed head, 2 legs of 6 and 2 arms of 5 links
 
 @pytest.fixture(scope="module")
 def pi_data(test_data: Path) -> Iterator[Path]:
-    """MimicKit's data with PI+ in it; `data/...` paths of the env yamls resolve there, as with `--data_dir`."""
+    """MimicKit's data with PI+ in it (the tests that take it are skipped without)."""
     if not (test_data / ASSET).is_file() or not (test_data / CLIP).is_file():
         pytest.skip(f"no PI+ asset and clip under {test_data}")
-    set_data_dir(test_data)
     yield test_data
-    set_data_dir(None)
+
+
+DATA = DataPaths(conftest.test_data_dir())
+"""`data/...` paths of the env yamls resolve in MimicKit's data folder, as with `--data_dir`."""
 
 
 SYNTHETIC = """<mujoco><asset><mesh name="m" file="gone.stl"/></asset><worldbody>
@@ -78,7 +81,7 @@ def test_mjcf_loads_without_its_meshes_and_says_what_is_lost(pi_data: Path) -> N
 
 
 def test_deepmimic_env_builds_resets_to_the_clip_and_steps(pi_data: Path) -> None:
-    env = build_env(PROJECT_ROOT / "data/envs/deepmimic_pi_plus_env.yaml", ENGINE, 4)
+    env = build_env(PROJECT_ROOT / "data/envs/deepmimic_pi_plus_env.yaml", ENGINE, 4, data_paths=DATA)
     obs, info = env.reset()
     assert env.get_action_space().shape == (DOFS,)
     assert obs.shape[0] == 4 and torch.isfinite(obs).all()
@@ -94,7 +97,7 @@ def test_deepmimic_env_builds_resets_to_the_clip_and_steps(pi_data: Path) -> Non
 
 def test_view_motion_plays_the_clip_as_kinematic_fk(pi_data: Path) -> None:
     env_cfg, engine_cfg = load_env_configs(PROJECT_ROOT / "data/envs/view_motion_pi_plus_env.yaml", ENGINE)
-    env = ViewMotionEnv(env_cfg, engine_cfg, 2)
+    env = ViewMotionEnv(env_cfg, engine_cfg, 2, data_paths=DATA)
     env.reset()
     lib, kin = env.motion_lib, env.char_model
     ids = torch.zeros(2, dtype=torch.long)
@@ -113,7 +116,10 @@ def test_arg_files_build_their_env(arg_file: str, pi_data: Path) -> None:
     args = ArgParser()
     args.load_args(["--arg_file", str(PROJECT_ROOT / "args" / arg_file)])
     env = build_env(
-        PROJECT_ROOT / args.parse_string("env_config"), PROJECT_ROOT / args.parse_string("engine_config"), 2
+        PROJECT_ROOT / args.parse_string("env_config"),
+        PROJECT_ROOT / args.parse_string("engine_config"),
+        2,
+        data_paths=DATA,
     )
     obs, _ = env.reset()
     if not args.has_key("agent_config"):

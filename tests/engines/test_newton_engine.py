@@ -27,7 +27,7 @@ from mimickit.util import torch_util as tu  # noqa: E402
 from mimickit.util.arg_parser import ArgParser  # noqa: E402
 from mimickit.util.config import load_config  # noqa: E402
 from mimickit.util.errors import MimicKitError  # noqa: E402
-from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, resolve_data_path, set_data_dir  # noqa: E402
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, DataPaths  # noqa: E402
 from tests import conftest  # noqa: E402
 from tests.engines.humanoid_cases import (  # noqa: E402
     HANGING,
@@ -289,23 +289,20 @@ def test_every_humanoid_arg_file_runs_on_newton(arg_file: str):
     """The arg file's env and agent with only --engine_config switched: build, reset, 3 policy steps."""
     args = ArgParser()
     args.load_file(str(PROJECT_ROOT / "args" / arg_file))
-    set_data_dir(str(conftest.test_data_dir() or "") or None)  # MimicKit clips (walk) come from the test data
+    paths = DataPaths(conftest.test_data_dir())  # MimicKit clips (walk) come from the test data
+    env_file = paths.resolve(args.parse_string("env_config", ""))
+    agent_file = args.parse_string("agent_config", "")
     try:
-        env_file = resolve_data_path(args.parse_string("env_config", ""))
-        agent_file = args.parse_string("agent_config", "")
-        try:
-            env = build_env(env_file, NEWTON_YAML, 2)
-        except MimicKitError as e:
-            if conftest.test_data_dir() is None and "not found" in str(e):
-                pytest.skip(f"{arg_file} needs MimicKit data (MIMICKIT_TEST_DATA): {e}")
-            raise
-        agent = build_agent(resolve_data_path(agent_file) if agent_file else None, env, verbose=False)
-        obs, _ = env.reset()
-        for _ in range(3):
-            obs, _, _, _ = env.step(agent.compute_action(obs))
-        assert env.engine.get_name() == "newton" and torch.isfinite(obs).all()
-    finally:
-        set_data_dir(None)
+        env = build_env(env_file, NEWTON_YAML, 2, data_paths=paths)
+    except MimicKitError as e:
+        if conftest.test_data_dir() is None and "not found" in str(e):
+            pytest.skip(f"{arg_file} needs MimicKit data (MIMICKIT_TEST_DATA): {e}")
+        raise
+    agent = build_agent(paths.resolve(agent_file) if agent_file else None, env, verbose=False)
+    obs, _ = env.reset()
+    for _ in range(3):
+        obs, _, _, _ = env.step(agent.compute_action(obs))
+    assert env.engine.get_name() == "newton" and torch.isfinite(obs).all()
 
 
 def test_engine_yaml():

@@ -14,7 +14,7 @@ import yaml
 
 from mimickit import cli
 from mimickit.tools.evaluate import format_table
-from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, set_data_dir
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
 from tests.conftest import DEMO_CLIP
 
 pytestmark = pytest.mark.integration
@@ -95,10 +95,7 @@ def misfit_model(tmp_path: Path) -> Path:
 
 
 def run_main(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    try:
-        code = cli.main(["eval", "--arg_file", str(DEMO_ARGS), *argv])
-    finally:
-        set_data_dir(None)
+    code = cli.main(["eval", "--arg_file", str(DEMO_ARGS), *argv])
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -161,10 +158,7 @@ def test_falls_count_against_full_length(test_data: Path, capsys: pytest.Capture
     walk_model = PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_walk_model.pt"
     argv = ["eval", "--arg_file", str(walk_args), "--model_file", str(walk_model), "--data_dir", str(test_data)]
     argv += ["--motion_file", "data/motions/humanoid/humanoid_run.pkl", "--episodes", "2", "--num_envs", "2", "--json"]
-    try:
-        assert cli.main(argv) == 0
-    finally:
-        set_data_dir(None)
+    assert cli.main(argv) == 0
     (row,) = json.loads(capsys.readouterr().out)["rows"]
     assert row["clip"] == "data/motions/humanoid/humanoid_run.pkl" and row["episodes"] >= 2
     assert row["mean_ep_len"] < EPISODE_STEPS / 2 and row["full_length_frac"] < 0.5, row
