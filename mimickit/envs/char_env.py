@@ -95,6 +95,11 @@ class CharEnv(SimEnv):
         """The object id of the visual reference character (the "ghost") viewers draw, None without one."""
         return None
 
+    def get_char_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The character's state (root, DoFs, bodies, `joint_rot`) of all envs or `env_ids`: do not write
+        into its tensors."""
+        return self._char_state(env_ids)
+
     # ------------------------------------------------------------- internals
     def _reset_envs(self, env_ids: torch.Tensor) -> None:
         super()._reset_envs(env_ids)

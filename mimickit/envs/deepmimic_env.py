@@ -111,6 +111,10 @@ class DeepMimicEnv(CharEnv):
     def get_ref_char_id(self) -> int | None:
         return self._ref_char_id if self._enable_ref_char else None
 
+    def get_motion_ids(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
+        """The MotionLib clip each env tracks [N] (or of `env_ids`)."""
+        return self._motion_ids.clone() if env_ids is None else self._motion_ids.index_select(0, env_ids)
+
     def get_motion_time(self, env_ids: torch.Tensor | None = None) -> torch.Tensor:
         t = self._time_buf + self._motion_time_offsets
         return t if env_ids is None else t.index_select(0, env_ids)
@@ -119,6 +123,19 @@ class DeepMimicEnv(CharEnv):
         """The reference at the current motion time: root_pos [N,3], root_rot [N,4], joint_rot [N,J-1,4],
         dof_pos [N,D], body_pos [N,J,3], body_rot [N,J,4], velocities."""
         return dict(self._ref, dof_pos=self._char_model.rot_to_dof(self._ref["joint_rot"]))
+
+    def get_ref_frames(self) -> dict[str, torch.Tensor]:
+        """The reference frames the env holds: {key: [N, S, ...]}, column 0 at the motion time, then the
+        target steps ahead (read only)."""
+        return dict(self._frames)
+
+    def eval_ref_frames(self, env_ids: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The same frames of `env_ids` evaluated afresh from the clip at their motion times."""
+        return self._eval_frames(env_ids, self.get_motion_time(env_ids), self._ref_steps)
+
+    def get_reset_pool(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The reset states evaluated ahead, in the order resets take them: motion ids [p], times [p]."""
+        return self._pool_ids.clone(), self._pool_times.clone()
 
     def set_mode(self, mode: EnvMode) -> None:
         super().set_mode(mode)

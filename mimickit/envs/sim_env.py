@@ -87,6 +87,11 @@ class SimEnv(BaseEnv):
     def set_mode(self, mode: EnvMode) -> None:
         super().set_mode(mode)
 
+    def compute_obs(self, env_ids: torch.Tensor) -> torch.Tensor:
+        """The observation [n, obs_dim] of `env_ids` computed afresh from the current state (not the
+        buffer that reset and step return)."""
+        return self._compute_obs(env_ids)
+
     def reset(self, env_ids: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, Any]]:
         if env_ids is None:
             env_ids = torch.arange(self.num_envs, device=self.device)

@@ -112,7 +112,7 @@ def test_agent_features_are_the_live_state_and_demo_features_the_reference():
         "dof_vel": e.get_dof_vel(c), "body_pos": e.get_body_pos(c),
     }  # fmt: skip
     lib = env.motion_lib
-    f = lib.calc_motion_frame(env._motion_ids, env.get_motion_time())
+    f = lib.calc_motion_frame(env.get_motion_ids(), env.get_motion_time())
     body_pos, _ = env.char_model.forward_kinematics(f.root_pos, f.root_rot, f.joint_rot)
     ref = {
         "root_pos": f.root_pos, "root_rot": f.root_rot, "root_vel": f.root_vel, "root_ang_vel": f.root_ang_vel,

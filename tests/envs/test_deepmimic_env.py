@@ -76,7 +76,7 @@ def test_pd_holds_init_pose_for_five_seconds():
     fields = {k: getattr(env_cfg, k) for k in CharEnvConfig.model_fields}
     env = CharEnv(CharEnvConfig(**dict(fields, env_name="char", episode_length=100.0)), engine_cfg, 2)
     env.reset()
-    target = env._init_dof_pos.expand(2, -1)
+    target = env.engine.get_dof_pos(env.get_char_id()).clone()  # the init pose the reset set
     steps = int(5.0 * engine_cfg.control_freq)
     heights = []
     for _ in range(steps):
@@ -107,14 +107,13 @@ def test_reset_one_env_leaves_others():
     env = make(DEEPMIMIC, num_envs=3)
     env.reset()
     for _ in range(3):
-        env.step(env.engine.get_dof_pos(0).clone())
-    before = {k: v.clone() for k, v in env._char_state().items()}
-    obs_before = env._obs_buf.clone()
-    env.reset(torch.tensor([1]))
-    after = env._char_state()
+        obs_before = env.step(env.engine.get_dof_pos(0).clone())[0].clone()
+    before = {k: v.clone() for k, v in env.get_char_state().items()}
+    obs, _ = env.reset(torch.tensor([1]))
+    after = env.get_char_state()
     for k in before:
         torch.testing.assert_close(after[k][[0, 2]], before[k][[0, 2]], msg=k)
-    torch.testing.assert_close(env._obs_buf[[0, 2]], obs_before[[0, 2]])
+    torch.testing.assert_close(obs[[0, 2]], obs_before[[0, 2]])
 
 
 def test_mimickit_style_yaml_with_isaac_engine_block(tmp_path):
@@ -192,16 +191,15 @@ def test_shifted_reference_equals_full_evaluation():
         env.step(torch.zeros(6, env.get_action_space().shape[0]))
         if i == 4:
             env.reset(torch.tensor([1, 3]))
-    shifted = {k: v.clone() for k, v in env._frames.items()}
-    ids = torch.arange(6)
-    fresh = env._eval_frames(ids, env.get_motion_time(ids), env._ref_steps)
+    shifted = {k: v.clone() for k, v in env.get_ref_frames().items()}
+    fresh = env.eval_ref_frames(torch.arange(6))
     for k, v in fresh.items():
         torch.testing.assert_close(shifted[k], v, atol=1e-4, rtol=0, msg=k)
 
 
 @pytest.mark.parametrize("global_obs", [True, False])
 def test_step_observation_equals_one_computed_afresh(global_obs):
-    """A step's target features come from `_update_clock`, computed while the physics runs; they must
+    """A step's target features come from the clock work, computed while the physics runs; they must
     equal the observation computed from scratch for the same envs, also right after some envs reset."""
     env = make(DEEPMIMIC, num_envs=5, global_obs=global_obs)
     env.reset()
@@ -209,11 +207,9 @@ def test_step_observation_equals_one_computed_afresh(global_obs):
     low, high = (torch.as_tensor(b) for b in (env.get_action_space().low, env.get_action_space().high))
     for i in range(6):
         obs, _, _, _ = env.step(low + (high - low) * torch.rand(5, low.shape[0], generator=gen))
-        assert env._tar_pose_obs is not None
-        torch.testing.assert_close(obs, env._compute_obs(torch.arange(5)), atol=0, rtol=0)
+        torch.testing.assert_close(obs, env.compute_obs(torch.arange(5)), atol=0, rtol=0)
         if i == 2:
-            env.reset(torch.tensor([0, 4]))
-            assert env._tar_pose_obs is None  # the reset envs' frames changed: recomputed at the next step
+            env.reset(torch.tensor([0, 4]))  # the reset envs' frames change: the next step's must follow
 
 
 @pytest.mark.parametrize("global_obs", [False, True])
@@ -233,7 +229,7 @@ def test_reset_observation_is_the_engine_state_observed(global_obs):
         obs, _ = env.reset(ids)
         assert env.engine._dirty[ids.numpy()].all()  # the reset did not read the engine (no sync yet)
         if k == 1:  # read the engine: this syncs its kinematics for the reset envs before the next step
-            from_engine = env._compute_obs(ids)
+            from_engine = env.compute_obs(ids)
             torch.testing.assert_close(obs[ids], from_engine, atol=1e-5, rtol=0)
     outs = [env.step(action) for env in envs]
     for a, b in zip(outs[0][:3], outs[1][:3], strict=True):
@@ -243,8 +239,8 @@ def test_reset_observation_is_the_engine_state_observed(global_obs):
 def test_reset_records_tracking_in_test_mode_only():
     env = make(DEEPMIMIC, num_envs=4)
     env.reset()
-    env.step(env.engine.get_dof_pos(0).clone())
-    after_step = {k: v.clone() for k, v in env._info["tracking"].items()}
+    _, _, _, info = env.step(env.engine.get_dof_pos(0).clone())
+    after_step = {k: v.clone() for k, v in info["tracking"].items()}
     assert after_step["dof_vel_err"].min() > 0  # a step off the clip
     _, info = env.reset(torch.tensor([0, 2]))
     for k, v in info["tracking"].items():
@@ -264,21 +260,24 @@ def test_resets_take_their_states_from_the_pool_evaluated_ahead():
     env.reset()  # 8 resets: the pool is sized from the recent reset rate
     zeros = torch.zeros(8, env.get_action_space().shape[0])
     env.step(zeros)
-    pooled = len(env._pool_ids)
+    pool_ids, pool_times = env.get_reset_pool()
+    pooled = len(pool_ids)
     assert pooled >= 2
-    head_times = env._pool_times[:2].clone()
     env.reset(torch.tensor([2, 5]))  # from the pool
-    torch.testing.assert_close(env._motion_time_offsets[[2, 5]], head_times, atol=0, rtol=0)
-    assert len(env._pool_ids) == pooled - 2
+    reset_ids = torch.tensor([2, 5])
+    torch.testing.assert_close(env.get_motion_time(reset_ids), pool_times[:2], atol=0, rtol=0)
+    assert torch.equal(env.get_motion_ids(reset_ids), pool_ids[:2])
+    assert len(env.get_reset_pool()[0]) == pooled - 2
     env.reset(torch.arange(8))  # more than the pool holds: the rest sampled now
-    assert len(env._pool_ids) == 0
-    ids = torch.arange(8)
-    fresh = env._eval_frames(ids, env.get_motion_time(ids), env._ref_steps)
+    assert len(env.get_reset_pool()[0]) == 0
+    fresh = env.eval_ref_frames(torch.arange(8))
+    frames = env.get_ref_frames()
     for k, v in fresh.items():
-        torch.testing.assert_close(env._frames[k], v, atol=0, rtol=0, msg=k)
-    assert len(set(env._motion_time_offsets.tolist())) == 8  # no state drawn twice
+        torch.testing.assert_close(frames[k], v, atol=0, rtol=0, msg=k)
+    assert len(set(env.get_motion_time().tolist())) == 8  # no state drawn twice (the clocks are at 0)
     # Without random reset times every pooled state starts its clip.
     still = make(DEEPMIMIC, num_envs=4, rand_reset=False)
     still.reset()
     still.step(torch.zeros(4, still.get_action_space().shape[0]))
-    assert len(still._pool_times) > 0 and still._pool_times.abs().max() == 0
+    still_times = still.get_reset_pool()[1]
+    assert len(still_times) > 0 and still_times.abs().max() == 0
