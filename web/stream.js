@@ -1,9 +1,7 @@
 // The page's one live connection: an EventSource on /api/stream (scene, rollout, runs, metrics, log).
 // When it breaks (the server stopped, a network cut, or three heartbeats missed) the page says so and
 // reconnects with backoff; the server's `hello` tells whether it is the same server or a new one.
-"use strict";
-
-class StudioStream {
+export class StudioStream {
   // url(query) -> the stream's URL; handlers: event name -> fn(data); onUp(hello, afterOutage); onDown(attempt).
   constructor({ url, handlers, onUp, onDown }) {
     Object.assign(this, { url, handlers, onUp, onDown });

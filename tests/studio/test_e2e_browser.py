@@ -32,14 +32,19 @@ pytestmark = [
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
 ]
 RENDER_WAIT_S = 3.0  # software WebGL draws about one frame a second
+# The scene's software WebGL shares the page's main thread (same-origin iframe): on a loaded machine
+# a click can wait for it well past Playwright's default 30 s.
+ACTION_TIMEOUT_MS = 90_000
+HIDE_TOAST = "[class*=Notification-root] { display: none !important; }"
 
 
 @pytest.fixture(scope="module")
 def page(studio: StudioProcess):
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        page = browser.new_page(viewport={"width": 1500, "height": 860})
+        page = browser.new_page(viewport={"width": 1280, "height": 720})
         page.on("dialog", lambda d: d.accept())  # "Delete run …?" confirmations
+        page.set_default_timeout(ACTION_TIMEOUT_MS)
         page.goto(studio.url)
         yield page
         browser.close()
@@ -96,6 +101,7 @@ def test_clip_player_in_the_browser(page, studio: StudioProcess, test_data, tmp_
 def test_launch_and_stop_a_run_from_the_page(page, studio: StudioProcess, tmp_path: Path) -> None:
     page.reload()
     page.wait_for_selector("#arg-file option[value$='long.txt']", state="attached")
+    page.click("#launch-box summary")  # the form is folded away until asked for
     page.select_option("#arg-file", value=str(studio.runs_dir / "args" / "long.txt"))
     page.fill("#run-name", "from the page")
     page.click("#launch-button")
@@ -106,10 +112,11 @@ def test_launch_and_stop_a_run_from_the_page(page, studio: StudioProcess, tmp_pa
     wait_for(lambda: studio.get(f"/api/runs/{run['id']}").json()["status"] == "running", what="running")
     item = page.locator(f"[data-run-id='{run['id']}']")
     item.locator(".status.running").wait_for(timeout=10_000)
-    # Live curves from the metrics stream: both returns, each reward term, the losses.
-    page.wait_for_selector("#curves canvas[data-group=returns][data-series='2']", timeout=15_000)
-    page.wait_for_selector("#curves canvas[data-group=rewards][data-series='2']")
-    page.wait_for_selector("#curves canvas[data-group=losses][data-series='2']")
+    page.click("#launch-box summary")  # fold the form again: the curves move up
+    # Live curves from the metrics stream (uPlot): both returns, each reward term, the losses.
+    page.wait_for_selector("#curves [data-group=returns][data-series='2'] canvas", timeout=15_000)
+    page.wait_for_selector("#curves [data-group=rewards][data-series='2']")
+    page.wait_for_selector("#curves [data-group=losses][data-series='2']")
     if state(studio)["clip"]:
         studio.post("/api/scene/play")  # a moving character in the picture
     _close_viser_toast(page)
@@ -135,8 +142,8 @@ def test_rollout_in_the_browser(page, studio: StudioProcess, demo_checkpoint: Pa
     assert s["rollout"]["checkpoint"] == str(demo_checkpoint)
     wait_for(lambda: state(studio)["rollout"]["step"] > 30, 15, "the rollout to step")
     page.locator("#rollout-panel").wait_for(state="visible")
-    # The dashboard's plot: the reward and the five reward terms, fed by the history endpoint.
-    page.wait_for_selector("#rollout-plot[data-series='6']", timeout=15_000)
+    # The dashboard's plot (uPlot): the reward and the five reward terms, fed by the stream.
+    page.wait_for_selector("#rollout-plot[data-series='6'] canvas", timeout=15_000)
     assert "episode" in page.locator("#rollout-label").inner_text()
 
     page.select_option("#fit-target", value="env_config=data/envs/deepmimic_humanoid_env.yaml")
@@ -176,7 +183,4 @@ def test_rollout_in_the_browser(page, studio: StudioProcess, demo_checkpoint: Pa
 def _close_viser_toast(page) -> None:
     """Hide viser's "Software WebGL rendering detected" notice: it covers part of the scene and says
     nothing about the studio (a style rule, since the notice may appear after any click closed it)."""
-    scene_url = page.locator("#scene").get_attribute("src")
-    for frame in page.frames:
-        if scene_url and frame.url.startswith(scene_url):
-            frame.add_style_tag(content="[class*=Notification-root] { display: none !important; }")
+    page.locator("#scene").element_handle().content_frame().add_style_tag(content=HIDE_TOAST)

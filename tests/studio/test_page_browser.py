@@ -1,0 +1,198 @@
+"""The dashboard as one control surface, in real Chromium (Playwright, the apt browser): at 1280×720 the
+middle of the 3D view is viser's canvas (no panel over it) and the player bar and the runs panel fit
+without wrapping or overflowing; Space steps after the timeline was dragged; `?` lists the shortcuts;
+two runs ticked and compared draw two curves per metric (uPlot) and a table of what differs; under
+800 px the layout stacks and the 3D view keeps its width.
+
+STUDIO_UPDATE_SCREENSHOTS=1 writes docs/studio_compare.png and docs/studio_narrow.png.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from mimickit.util.paths import PROJECT_ROOT
+from tests.studio.conftest import StudioProcess, wait_for, write_arg_file
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
+]
+HIDE_TOAST = "[class*=Notification-root] { display: none !important; }"  # viser's "software WebGL" notice
+# The scene's software WebGL shares the page's main thread (same-origin iframe): on a loaded machine
+# a click can wait for it well past Playwright's default 30 s.
+ACTION_TIMEOUT_MS = 90_000
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
+    runs_dir = tmp_path_factory.mktemp("page_browser_runs")
+    write_arg_file(runs_dir, "short", rows=12, period=0.05)
+    s = StudioProcess(runs_dir, None)  # the project's own data: the demo clip plays at start-up
+    yield s
+    s.stop()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
+        yield b
+        b.close()
+
+
+def open_page(browser, server: StudioProcess, width: int, height: int):
+    page = browser.new_page(viewport={"width": width, "height": height})
+    page.set_default_timeout(ACTION_TIMEOUT_MS)
+    page.errors = []
+    page.on("pageerror", lambda e: page.errors.append(str(e)))
+    page.goto(server.url)
+    page.frame_locator("#scene").locator("canvas").first.wait_for(timeout=60_000)
+    wait_for(lambda: page.locator("#frame-label").inner_text() != "–", 30, "the scene state on the page")
+    return page
+
+
+def scene_frame(page):
+    return page.locator("#scene").element_handle().content_frame()
+
+
+def state(server: StudioProcess) -> dict:
+    return server.get("/api/scene/state").json()
+
+
+def test_the_3d_view_is_not_covered_and_the_bars_fit(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    time.sleep(2.0)  # viser lays out its (minimised) panel after the canvas appears
+    box = page.locator("#scene").bounding_box()
+    assert box["width"] >= 500 and box["height"] >= 400, box
+    hit = scene_frame(page).evaluate(
+        "([x, y]) => document.elementFromPoint(x, y).tagName", [box["width"] / 2, box["height"] / 2]
+    )
+    assert hit == "CANVAS", f"the centre of the 3D view is a {hit}, not the canvas"
+    # Nothing of the page lies over the iframe either.
+    assert (
+        page.evaluate(
+            "([x, y]) => document.elementFromPoint(x, y).id",
+            [box["x"] + box["width"] / 2, box["y"] + box["height"] / 2],
+        )
+        == "scene"
+    )
+    # The player bar: two rows that do not wrap (each row one control high).
+    for row in page.locator("#player .bar").all():
+        assert row.bounding_box()["height"] < 40, "a player bar row wrapped"
+    # No select or panel sticks out of its column.
+    runs = page.locator("#runs").bounding_box()
+    for sel in ("#checkpoint", "#fit-target"):
+        b = page.locator(sel).bounding_box()
+        assert b["x"] + b["width"] <= runs["x"] + runs["width"] + 0.5, f"{sel} overflows the runs panel"
+    assert page.evaluate("document.documentElement.scrollWidth <= innerWidth")
+    assert page.errors == []
+    page.close()
+
+
+def test_space_steps_after_dragging_the_timeline(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    server.post("/api/scene/pause")
+    slider = page.locator("#timeline").bounding_box()
+    y = slider["y"] + slider["height"] / 2
+    page.mouse.move(slider["x"] + slider["width"] * 0.2, y)
+    page.mouse.down()
+    page.mouse.move(slider["x"] + slider["width"] * 0.5, y, steps=5)
+    page.mouse.up()
+    assert page.evaluate("document.activeElement.id") == "timeline"  # the slider keeps the focus
+    frame = wait_for(lambda: (f := state(server)["frame"]) > 5 and f, what="the drag to seek")
+    time.sleep(0.5)  # the last seek of the drag answered
+    frame = state(server)["frame"]
+    page.keyboard.press(" ")
+    wait_for(lambda: state(server)["frame"] == frame + 1, what="Space to step one frame after the drag")
+    page.keyboard.press("Enter")
+    wait_for(lambda: state(server)["playing"], what="Enter to play after the drag")
+    page.keyboard.press("Enter")
+    wait_for(lambda: not state(server)["playing"], what="Enter to pause")
+    page.fill("#filter", "squat ")  # typing in a text field is typing, not a shortcut
+    time.sleep(0.5)
+    assert not state(server)["playing"] and page.locator("#filter").input_value() == "squat "
+    page.close()
+
+
+def test_question_mark_lists_every_shortcut(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    dialog = page.locator("#shortcuts")
+    assert dialog.is_hidden()
+    page.keyboard.press("?")
+    dialog.wait_for(state="visible")
+    text = dialog.inner_text()
+    for key, what in (("Enter", "play / pause"), ("Space", "step one frame"), ("←", "previous"), ("?", "this list")):
+        assert key in text and what in text, text
+    page.keyboard.press("Escape")
+    dialog.wait_for(state="hidden")
+    page.click("#shortcuts-button")
+    dialog.wait_for(state="visible")
+    page.close()
+
+
+def test_two_runs_compared_overlay_and_their_settings_differ(browser, server: StudioProcess, tmp_path: Path) -> None:
+    ids = []
+    for seed, envs in ((3, 2), (4, 4)):  # other env counts: other samples per iteration, two visible curves
+        body = {"arg_file": "args/short.txt", "name": f"seed {seed}", "rand_seed": seed, "num_envs": envs}
+        ids.append(server.post("/api/runs", body).json()["id"])
+    for i in ids:
+        wait_for(lambda i=i: server.get(f"/api/runs/{i}").json()["status"] == "finished", 30, f"run {i} to finish")
+    page = open_page(browser, server, 1280, 720)
+    assert page.locator("#compare-button").is_disabled()
+    for i in ids:
+        page.locator(f'[data-compare="{i}"]').check()
+    page.click("#compare-button")
+    plot = page.locator("#compare-plots [data-metric=train_return][data-series='2']")
+    plot.wait_for(timeout=15_000)
+    assert plot.locator("canvas").count() == 1
+    assert f"#{ids[0]}" in plot.inner_text() and f"#{ids[1]}" in plot.inner_text()  # the legend names both runs
+    diff = page.locator("#compare-diff table")
+    diff.wait_for()
+    seed_row = diff.locator("tr", has=page.locator("td", has_text="launch.rand_seed"))
+    assert seed_row.locator("td").all_inner_texts()[1:] == ["3", "4"]
+    envs_row = diff.locator("tr", has=page.locator("td", has_text="launch.num_envs"))
+    assert envs_row.locator("td").all_inner_texts()[1:] == ["2", "4"]
+    shot = tmp_path / "studio_compare.png"
+    if os.environ.get("STUDIO_UPDATE_SCREENSHOTS") == "1":
+        shot = PROJECT_ROOT / "docs" / "studio_compare.png"
+    scene_frame(page).add_style_tag(content=HIDE_TOAST)
+    page.screenshot(path=str(shot))
+    # Smoothing and the x axis redraw the same two curves.
+    page.locator("#x-axis").select_option("iteration")
+    page.locator("#smoothing").fill("0.6")
+    page.wait_for_selector("#compare-plots [data-metric=train_return][data-series='2']")
+    assert "iteration" in page.locator("#compare-plots [data-metric=train_return]").inner_text()
+    page.locator(f'[data-run-id="{ids[0]}"]').click()  # selecting one run: back to its own curves
+    page.locator("#curves").wait_for(state="visible")
+    assert page.locator("#compare").is_hidden()
+    assert page.errors == []
+    page.close()
+
+
+def test_narrow_screen_stacks_with_a_visible_3d_view(browser, server: StudioProcess, tmp_path: Path) -> None:
+    page = open_page(browser, server, 390, 844)
+    box = page.locator("#scene").bounding_box()
+    assert box["width"] >= 380 and box["height"] >= 200, box
+    runs = page.locator("#runs").bounding_box()
+    assert runs["y"] >= box["y"] + box["height"], "the runs panel is not below the 3D view"
+    for row in page.locator("#player .bar").all():
+        assert row.bounding_box()["height"] < 40, "a player bar row wrapped"
+    assert page.evaluate("document.documentElement.scrollWidth <= innerWidth"), "the page scrolls sideways"
+    shot = tmp_path / "studio_narrow.png"
+    if os.environ.get("STUDIO_UPDATE_SCREENSHOTS") == "1":
+        shot = PROJECT_ROOT / "docs" / "studio_narrow.png"
+    scene_frame(page).add_style_tag(content=HIDE_TOAST)
+    time.sleep(1.0)
+    page.screenshot(path=str(shot))
+    assert page.errors == []
+    page.close()

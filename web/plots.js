@@ -1,0 +1,178 @@
+// Line plots on uPlot (vendored in web/vendor/, MIT): named series on one x axis, axes with ticks and
+// labels, labelled vertical markers (a run's resumes, where it diverged), red ticks where a series went
+// non-finite (NaN/inf: no point to draw), an optional cursor line (the rollout's shown step) and
+// exponential smoothing. The page's one plotting code: run curves, compared runs, rollout reward terms.
+import uPlot from "./vendor/uPlot.esm.js";
+
+export const PALETTE = ["#f0a830", "#5a9ae0", "#3cc878", "#e0564f", "#b77fe0", "#40c8c8", "#e07fb0", "#a0a060"];
+const AXIS = { stroke: "#8a91a0", grid: { stroke: "#2a2e37", width: 1 }, ticks: { stroke: "#2e323c", width: 1 }, font: "11px system-ui, sans-serif", labelFont: "11px system-ui, sans-serif" };
+const MARKER_COLORS = { resume: "#8fa8ff", diverged: "#ff4d4d" };
+
+export class CurvePlot {
+  // options: title, xLabel, yLabel, height, window (keep the last `window` x units), yRange ([lo, hi]),
+  // colors ({name: color}); `cursor` (an x value, or null) draws a dashed line there.
+  constructor(container, options = {}) {
+    this.box = container;
+    this.options = { height: 150, ...options };
+    this.series = new Map(); // name -> {xs, ys}
+    this.markers = []; // [{x, label, kind}]
+    this.nonfinite = []; // [{name, x, token}]
+    this.cursor = null;
+    this.smoothing = 0;
+    this.uplot = null;
+    this.names = ""; // the series the uPlot instance was built for
+    this.pending = false;
+    new ResizeObserver(() => this._resize()).observe(container);
+    this.draw();
+  }
+
+  clear() {
+    this.series.clear();
+    this.markers = [];
+    this.nonfinite = [];
+    this.draw();
+  }
+
+  add(name, x, y) {
+    if (!Number.isFinite(x) || !Number.isFinite(y)) return;
+    if (!this.series.has(name)) this.series.set(name, { xs: [], ys: [] });
+    const s = this.series.get(name);
+    s.xs.push(x);
+    s.ys.push(y);
+    const w = this.options.window;
+    if (w && s.xs[0] < x - w * 1.5) {  // trim now and then, not on every point
+      const keep = s.xs.findIndex((px) => px >= x - w);
+      s.xs.splice(0, keep);
+      s.ys.splice(0, keep);
+    }
+  }
+
+  addMarker(x, label, kind = "resume") {
+    if (Number.isFinite(x)) this.markers.push({ x, label, kind });
+  }
+
+  markNonfinite(name, x, token) {
+    if (Number.isFinite(x)) this.nonfinite.push({ name, x, token });
+  }
+
+  setXLabel(label) {
+    if (this.options.xLabel === label) return;
+    this.options.xLabel = label;
+    this.names = "";  // axis labels are fixed at construction: build again
+  }
+
+  // Many rows arrive at once when a stream starts: draw once per animation frame.
+  draw() {
+    if (this.pending) return;
+    this.pending = true;
+    requestAnimationFrame(() => { this.pending = false; this._draw(); });
+  }
+
+  _draw() {
+    const names = [...this.series.keys()];
+    this.box.dataset.series = String(names.filter((n) => this.series.get(n).xs.length).length);
+    this.box.dataset.markers = String(this.markers.length);
+    this.box.dataset.nonfinite = String(new Set(this.nonfinite.map((m) => m.x)).size);
+    this.box.classList.toggle("empty", names.length === 0 && this.nonfinite.length === 0);
+    const key = names.join("\u0000");
+    if (!this.uplot || key !== this.names) this._build(names, key);
+    this.uplot.setData(this._aligned(names), true);
+  }
+
+  // uPlot wants one x array and, per series, a y (or null) for each x.
+  _aligned(names) {
+    const xs = new Set();
+    for (const s of this.series.values()) for (const x of s.xs) xs.add(x);
+    for (const m of [...this.markers, ...this.nonfinite]) xs.add(m.x);
+    let x = [...xs].sort((a, b) => a - b);
+    const w = this.options.window;
+    if (w && x.length) x = x.filter((v) => v >= x[x.length - 1] - w);
+    const index = new Map(x.map((v, i) => [v, i]));
+    const data = [x];
+    for (const n of names) {
+      const s = this.series.get(n), y = new Array(x.length).fill(null);
+      const ys = smooth(s.ys, this.smoothing);
+      s.xs.forEach((px, i) => { const j = index.get(px); if (j !== undefined) y[j] = ys[i]; });
+      data.push(y);
+    }
+    return data;
+  }
+
+  _build(names, key) {
+    if (this.uplot) this.uplot.destroy();
+    this.names = key;
+    const o = this.options, colors = o.colors || {};
+    const yRange = o.yRange;
+    const opts = {
+      width: Math.max(100, this.box.clientWidth), height: o.height,
+      title: o.title,
+      scales: {
+        x: { time: false },
+        y: yRange ? { range: () => yRange } : { range: (u, lo, hi) => padRange(lo, hi) },
+      },
+      axes: [{ ...AXIS, label: o.xLabel, size: 34, labelSize: 14, values: (u, v) => v.map(fmt) },
+             { ...AXIS, label: o.yLabel, size: 48, labelSize: 14, values: (u, v) => v.map(fmt) }],
+      series: [{ label: o.xLabel || "x", value: (u, v) => (v === null ? "–" : fmt(v)) },
+        ...names.map((n, i) => ({
+          label: n.replace("reward_terms.", ""), stroke: colors[n] || PALETTE[i % PALETTE.length], width: 1.5,
+          spanGaps: true, points: { show: false }, value: (u, v) => (v === null ? "–" : fmt(v)),
+        }))],
+      legend: { show: true, live: true },
+      cursor: { drag: { x: false, y: false } },
+      hooks: { draw: [(u) => this._overlay(u)] },
+    };
+    this.uplot = new uPlot(opts, [[], ...names.map(() => [])], this.box);
+  }
+
+  _resize() {
+    if (this.uplot && this.box.clientWidth > 0 && Math.abs(this.uplot.width - this.box.clientWidth) > 1) {
+      this.uplot.setSize({ width: this.box.clientWidth, height: this.options.height });
+    }
+  }
+
+  // Markers, non-finite ticks and the cursor line, drawn over the curves.
+  _overlay(u) {
+    const { ctx } = u, { top, height } = u.bbox, ratio = devicePixelRatio || 1;
+    const [x0, x1] = [u.scales.x.min, u.scales.x.max];
+    const at = (x) => u.valToPos(x, "x", true);
+    const vline = (x, color, dash, label, labelY) => {
+      ctx.save();
+      ctx.strokeStyle = color; ctx.lineWidth = ratio; ctx.setLineDash(dash.map((d) => d * ratio));
+      ctx.beginPath(); ctx.moveTo(at(x), top); ctx.lineTo(at(x), top + height); ctx.stroke();
+      if (label) { ctx.setLineDash([]); ctx.fillStyle = color; ctx.font = `${11 * ratio}px system-ui, sans-serif`; ctx.fillText(label, at(x) + 3 * ratio, labelY); }
+      ctx.restore();
+    };
+    for (const m of this.markers) if (m.x >= x0 && m.x <= x1) vline(m.x, MARKER_COLORS[m.kind] || MARKER_COLORS.resume, [4, 3], m.label, top + height - 4 * ratio);
+    const shown = new Set();
+    for (const m of this.nonfinite) {
+      if (m.x < x0 || m.x > x1) continue;
+      const key = String(m.x);  // one label per iteration, however many columns went non-finite there
+      vline(m.x, "#ff4d4d", [], shown.has(key) ? "" : `${m.token} ${m.name.replace("reward_terms.", "")}`, top + 12 * ratio);
+      shown.add(key);
+    }
+    if (this.cursor !== null && this.cursor >= x0 && this.cursor <= x1) vline(this.cursor, "#d8dce4", [3, 3], "", 0);
+  }
+}
+
+// Exponential moving average with TensorBoard's debiasing: weight 0 is the raw curve.
+export function smooth(ys, weight) {
+  if (!weight) return ys;
+  let last = 0, n = 0;
+  return ys.map((y) => { last = last * weight + (1 - weight) * y; n += 1; return last / (1 - weight ** n); });
+}
+
+function padRange(lo, hi) {
+  if (lo === null || hi === null) return [0, 1];
+  if (lo === hi) return [lo - 1, hi + 1];
+  const pad = (hi - lo) * 0.05;
+  return [lo - pad, hi + pad];
+}
+
+export function fmt(v) {
+  if (v === null || v === undefined) return "";
+  const a = Math.abs(v);
+  if (a >= 1e6) return `${+(v / 1e6).toFixed(2)}M`;
+  if (a >= 1e4) return `${+(v / 1e3).toFixed(1)}k`;
+  if (a > 0 && a < 1e-2) return v.toExponential(1);
+  return String(+v.toFixed(a >= 100 ? 0 : 2));
+}

@@ -1,0 +1,223 @@
+// The runs panel: the launch form, the run list (pushed by the stream, updated in place) with each run's
+// actions and its "compare" tick, the selected run's curves and console.
+import { $, api, el } from "./api.js";
+import { refreshCheckpoints, inspectCheckpoint } from "./checkpoints.js";
+import { addRows, clearCurves, setDiverged } from "./curves.js";
+import { compareSelection, showCompare } from "./compare.js";
+import { loadRollout } from "./player.js";
+
+let stream = null;
+let selectedRun = null;
+export const selectedRunId = () => selectedRun;
+
+const DEFAULT_ARG_FILE = "deepmimic_humanoid_demo_ppo_args";  // trains on the project's own clip: no MimicKit data needed
+export function fillLaunchForm(library) {
+  const argSel = $("arg-file"), keep = argSel.value;
+  argSel.replaceChildren(...library.configs.arg_files.map((a) => el("option", { value: a.path, title: a.path }, a.name)));
+  const demo = library.configs.arg_files.find((a) => a.name === DEFAULT_ARG_FILE);
+  if (keep) argSel.value = keep;
+  else if (demo) argSel.value = demo.path;
+  const motionSel = $("motion-file"), keepMotion = motionSel.value;
+  motionSel.replaceChildren(el("option", { value: "" }, "(from the arg file)"),
+    ...library.configs.datasets.map((d) => el("option", { value: d.path }, `dataset: ${d.name}`)),
+    ...library.clips.filter((m) => !m.error).map((m) => el("option", { value: m.path }, m.path)));
+  motionSel.value = keepMotion;
+  $("launch-button").disabled = library.configs.arg_files.length === 0;
+  if (!library.configs.arg_files.length) $("launch-error").textContent = "no arg files found (args/*.txt)";
+}
+
+export function initRuns(theStream) {
+  stream = theStream;
+  $("launch").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const body = { arg_file: $("arg-file").value };
+    if ($("run-name").value) body.name = $("run-name").value;
+    if ($("num-envs").value) body.num_envs = Number($("num-envs").value);
+    if ($("max-samples").value) body.max_samples = Number($("max-samples").value);
+    if ($("motion-file").value) body.motion_file = $("motion-file").value;
+    if ($("rand-seed").value !== "") body.rand_seed = Number($("rand-seed").value);
+    try {
+      const run = await api("POST", "/api/runs", body);
+      $("launch-error").textContent = "";
+      selectRun(run.id);
+      await refreshRuns();
+    } catch (e) {
+      $("launch-error").textContent = e.message;
+    }
+  });
+}
+
+// After a user's action: the new list at once (the stream would bring it within a second).
+async function refreshRuns() {
+  try { renderRuns(await api("GET", "/api/runs")); } catch (e) { /* the banner tells when the server is gone */ }
+}
+
+// The run list, pushed by the stream when it changed: each run keeps its element, updated in place, so a
+// focused button keeps its focus and a click in flight lands; the list is re-laid only when runs came
+// or went. The checkpoint list is fetched again only when a run's checkpoint changed.
+const runNodes = new Map();  // run id -> {node, run, key, fields}
+let checkpointsKey = null;
+export function renderRuns(runs) {
+  const list = $("run-list");
+  const nodes = runs.slice().reverse().map((run) => runNode(run));
+  // Insert and remove around the elements that stay: moving an element would take its focus away.
+  const keep = new Set(nodes);
+  for (const child of [...list.children]) if (!keep.has(child)) child.remove();
+  nodes.forEach((n, i) => { if (list.children[i] !== n) list.insertBefore(n, list.children[i] || null); });
+  for (const id of runNodes.keys()) if (!runs.some((r) => r.id === id)) { runNodes.delete(id); compareSelection.delete(id); }
+  const key = JSON.stringify(runs.map((r) => [r.id, r.checkpoint, r.checkpoint_mtime ?? null]));
+  if (checkpointsKey !== null && key !== checkpointsKey) refreshCheckpoints();
+  checkpointsKey = key;
+  compareSelection.changed();
+  const selected = runs.find((r) => r.id === selectedRun);
+  if (selected && selected.status === "diverged") divergenceOf(selected.id);
+}
+
+let divergenceAsked = null;
+async function divergenceOf(id) {
+  if (divergenceAsked === id) return;
+  divergenceAsked = id;
+  try {
+    const c = await api("GET", `/api/compare?runs=${id}`);
+    if (selectedRun === id) setDiverged(c.runs[0].diverged);
+  } catch (e) { divergenceAsked = null; }
+}
+
+const ENDED = ["finished", "stopped", "diverged", "failed", "interrupted"];
+const num = (v) => (v === null || v === undefined ? "–" : Number(v).toLocaleString("en-US"));
+const duration = (s) => (s === null || s === undefined ? "–" : s < 60 ? `${s.toFixed(0)} s` : s < 3600 ? `${(s / 60).toFixed(1)} min` : `${(s / 3600).toFixed(2)} h`);
+
+function runNode(run) {
+  let entry = runNodes.get(run.id);
+  if (!entry) { entry = buildRunNode(run); runNodes.set(run.id, entry); }
+  entry.run = run;
+  const { duration_s, ...content } = run;  // GET /api/runs has the clock-driven duration; the stream does not
+  const key = JSON.stringify(content);
+  if (key !== entry.key) { entry.key = key; updateRunNode(entry); }
+  return entry.node;
+}
+
+// One run's element; its buttons act on the run's latest record (entry.run).
+function buildRunNode(run) {
+  const entry = { run, key: null, fields: {} };
+  const f = entry.fields;
+  const field = (name) => (f[name] = el("span", { "data-field": name }));
+  const act = (label, fn) => (f[label] = el("button", { "data-action": label.toLowerCase(), onclick: (ev) => { ev.stopPropagation(); fn(entry.run); } }, label));
+  f.title = el("span", {});
+  f.progress = el("progress", { "data-field": "progress" });
+  f.reason = el("div", { class: "meta reason", "data-field": "reason" });
+  f.resumes = el("span", {});
+  f.compare = el("input", { type: "checkbox", "data-compare": run.id, title: "compare this run with the others ticked",
+    onclick: (ev) => ev.stopPropagation(),
+    onchange: (ev) => compareSelection.toggle(run.id, ev.target.checked) });
+  entry.node = el("div", { class: "item", "data-run-id": run.id, onclick: () => selectRun(run.id) },
+    el("div", {}, el("label", { class: "compare-tick", onclick: (ev) => ev.stopPropagation() }, f.compare), f.title, " ", field("status")),
+    el("div", { class: "meta" }, field("clip"), " on ", field("char"), " · ", field("envs"), " · seed ", field("seed")),
+    el("div", { class: "meta" }, f.progress, " ", field("samples")),
+    el("div", { class: "meta" }, field("elapsed"), " · ", field("rate"), " · test return ", field("test-return"), f.resumes),
+    f.reason,
+    el("div", { class: "actions" },
+      act("Stop", (r) => runAction(r, "stop")),
+      act("Continue", (r) => continueRun(r)),
+      act("Again", (r) => runAction(r, "again")),
+      act("Rollout", (r) => loadRollout({ run_id: r.id })),
+      act("Inspect", (r) => inspectCheckpoint(r.checkpoint)),
+      act("Delete", (r) => deleteRun(r))));
+  return entry;
+}
+
+// What the run's folder says (run.summary): what it trains, how far, at what rate, with which seed, how it ended.
+function updateRunNode({ run, node, fields: f }) {
+  const s = run.summary || {};
+  const active = ["running", "stopping", "queued"].includes(run.status);
+  const ended = ENDED.includes(run.status);
+  const set = (e, text) => { if (e.textContent !== text) e.textContent = text; };
+  node.classList.toggle("selected", run.id === selectedRun);
+  set(f.title, `#${run.id} ${run.name}`);
+  set(f.status, run.status);
+  f.status.className = `status ${run.status}`;
+  set(f.clip, s.motion_file ? `${s.dataset ? "dataset " : ""}${s.motion_file.split("/").pop()}` : run.config.arg_file.split("/").pop());
+  set(f.char, s.char_file ? s.char_file.split("/").pop() : "–");
+  set(f.envs, `${num(s.num_envs ?? run.config.num_envs)} envs`);
+  set(f.seed, num(s.seed));
+  const budget = s.max_samples ?? run.config.max_samples ?? null;
+  f.progress.max = budget || 1;
+  if (budget) f.progress.value = Math.min(s.samples || 0, budget);
+  else f.progress.removeAttribute("value");  // no budget: an indeterminate bar
+  set(f.samples, `${num(s.samples)} / ${budget ? num(budget) : "no limit"} samples`);
+  set(f.elapsed, duration(s.elapsed_s));
+  set(f.rate, `${s.samples_per_s ? s.samples_per_s.toFixed(0) : "–"} samples/s`);
+  set(f["test-return"], s.test_return !== null && s.test_return !== undefined ? s.test_return.toFixed(2) : "–");
+  set(f.resumes, s.resumes ? ` · resumed ${s.resumes}×` : "");
+  set(f.reason, run.reason || "");
+  f.reason.hidden = !run.reason;
+  f.Stop.disabled = !(active && run.status !== "stopping");
+  f.Continue.disabled = !(ended && !!run.checkpoint);
+  f.Again.disabled = !(s.seed !== null && s.seed !== undefined);
+  f.Rollout.disabled = !run.checkpoint;
+  f.Inspect.disabled = !run.checkpoint;
+  f.Delete.disabled = active;
+}
+
+// POSTs carry a JSON body (the server refuses cross-site form posts).
+async function runAction(run, action, body = {}) {
+  let result = null;
+  try { result = await api("POST", `/api/runs/${run.id}/${action}`, body); } catch (e) { alert(e.message); }
+  if (result && action === "resume") selectRun(run.id);
+  if (result && action === "again") selectRun(result.id);
+  refreshRuns();
+}
+
+// Continue: resume from the checkpoint with a budget (total samples); a run that reached its budget needs a larger one.
+function continueRun(run) {
+  const s = run.summary || {};
+  const budget = s.max_samples ?? run.config.max_samples ?? null, samples = s.samples;
+  const suggested = budget && samples >= budget ? 2 * budget : budget || "";
+  const answer = prompt(`Continue run #${run.id} up to how many samples in all? (trained: ${num(samples)})`, String(suggested));
+  if (answer === null) return;
+  runAction(run, "resume", answer.trim() ? { max_samples: Number(answer) } : {});
+}
+
+async function deleteRun(run) {
+  if (!confirm(`Delete run #${run.id} "${run.name}" and its folder ${run.out_dir}?`)) return;
+  try { await api("DELETE", `/api/runs/${run.id}`); } catch (e) { alert(e.message); }
+  if (selectedRun === run.id) {
+    selectedRun = null;
+    $("curves-title").textContent = "Curves";
+    $("console").textContent = "";
+    clearCurves();
+    stream.open({});
+  }
+  refreshRuns();
+}
+
+// Live curves and console: the stream, subscribed to the selected run, pushes its metrics rows and log lines.
+export function selectRun(id) {
+  showCompare(false);
+  if (id === selectedRun) return;
+  selectedRun = id;
+  divergenceAsked = null;
+  clearCurves();
+  $("console").textContent = "";
+  $("curves-title").textContent = `Curves · run #${id}`;
+  document.querySelectorAll("#run-list .item").forEach((e) => e.classList.toggle("selected", Number(e.dataset.runId) === id));
+  const run = runNodes.get(id);
+  if (run && run.run.status === "diverged") divergenceOf(id);
+  stream.open({ run: id });
+}
+
+// {run, reset, start, rows}: the first batch of a connection has reset (the rows start again from 0).
+export function addMetrics(m) {
+  if (m.run !== selectedRun) return;
+  addRows(m.rows, m.reset);
+}
+
+const CONSOLE_LINES = 200;
+export function addLog(l) {  // {run, reset, lines}
+  if (l.run !== selectedRun) return;
+  const box = $("console");
+  const stick = box.scrollTop + box.clientHeight >= box.scrollHeight - 4;  // follow the end unless scrolled up
+  const lines = (l.reset || !box.textContent ? [] : box.textContent.split("\n")).concat(l.lines);
+  box.textContent = lines.slice(-CONSOLE_LINES).join("\n");
+  if (stick) box.scrollTop = box.scrollHeight;
+}
