@@ -246,7 +246,7 @@ def test_same_origin_requests_are_accepted(
 @case("ok-page-sends-the-guard-header")
 def test_ok_page_sends_the_guard_header(case: str, srv: StudioProcess) -> None:
     """The dashboard's script sends X-Studio-Request with every API call (it is same-origin)."""
-    assert '"X-Studio-Request": "1"' in srv.get("/web/app.js").text
+    assert '"X-Studio-Request": "1"' in srv.get("/web/api.js").text
 
 
 def _upgrade_status(port: int, path: str, headers: dict[str, str]) -> str:

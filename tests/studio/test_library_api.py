@@ -26,7 +26,7 @@ def test_health(studio: StudioProcess) -> None:
 def test_page_and_docs_are_served(studio: StudioProcess) -> None:
     page = studio.get("/")
     assert page.status_code == 200 and "MimicKit Studio" in page.text and 'id="scene"' in page.text
-    assert studio.get("/web/app.js").status_code == 200
+    assert studio.get("/web/main.js").status_code == 200
     assert studio.get("/docs").status_code == 200
     paths = studio.get("/openapi.json").json()["paths"]
     for p in ("/api/health", "/api/motions", "/api/runs", "/api/runs/{run_id}/metrics", "/api/scene/load_clip"):
