@@ -114,7 +114,8 @@ def test_the_studio_serves_the_page_and_the_demo_clip(installed: Installed) -> N
         with httpx.Client(base_url=line.split()[-1], timeout=30.0) as client:
             page = client.get("/")
             assert page.status_code == 200 and "<html" in page.text
-            assert client.get("/web/app.js").status_code == 200
+            assert client.get("/web/main.js").status_code == 200
+            assert client.get("/web/vendor/uPlot.esm.js").status_code == 200  # the page's plots, vendored
             motions = client.get("/api/motions").json()
         assert "data/motions/humanoid_demo_squat.pkl" in [m["path"] for m in motions], motions
         # The runs folder defaults to the working directory's output/, not into site-packages.
