@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import ctypes.util
 import functools
 import os
 import signal
@@ -122,8 +121,8 @@ def _cmdline(pid: int) -> str:
 _PR_SET_PDEATHSIG = 1
 _PRCTL = None
 if sys.platform.startswith("linux"):
-    _libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-    _PRCTL = _libc.prctl
+    # The process's own symbols (libc's among them): find_library would run ldconfig in a subprocess.
+    _PRCTL = ctypes.CDLL(None, use_errno=True).prctl
 
 
 def _die_with_parent(parent_pid: int) -> None:
