@@ -1,7 +1,7 @@
 """Train or test an agent: `python mimickit/run.py --arg_file args/...txt`, as in MimicKit.
 
-`mimickit train ...` and `mimickit test ...` call the same code with `--mode` set. Arguments follow the
-reference (spec §1.2): arg_file, mode, num_envs, engine_config, env_config, agent_config, out_dir,
+`mimickit train ...` and `mimickit test ...` call the same code with `--mode` set. Arguments are the
+reference's `run.py` ones: arg_file, mode, num_envs, engine_config, env_config, agent_config, out_dir,
 model_file, max_samples, test_episodes, logger (txt|tb|wandb), rand_seed, devices, save_int_models,
 visualize, video; plus data_dir (a MimicKit data folder for `data/...` paths), motion_file (a clip or
 dataset yaml that replaces the env config's `motion_file`) and json (test mode: print one JSON object).

@@ -1,4 +1,4 @@
-"""MotionLib: a set of clips on one character, sampled and interpolated in batches (spec §4.3).
+"""MotionLib: a set of clips on one character, sampled and interpolated in batches, as the reference's.
 
 All clips are concatenated along frames. Per frame it keeps root position/rotation, joint rotations
 and finite-difference velocities; queries take motion ids and times as tensors `[n]` and return
@@ -69,7 +69,7 @@ def load_motion_list(motion_file: str | Path, data_paths: DataPaths = PROJECT_DA
 def process_share(
     entries: list[tuple[Path, float]], rank: int, num_procs: int, source: str | Path = "the dataset"
 ) -> list[tuple[Path, float]]:
-    """The clips process `rank` of `num_procs` trains on, as the reference splits a dataset (spec §1.4):
+    """The clips process `rank` of `num_procs` trains on, as the reference splits a dataset:
     with M ≥ num_procs clips, process r keeps clips [round(r·M/W), round((r+1)·M/W)) (W = num_procs;
     round half to even, as numpy's), so every clip goes to exactly one process and each gets at least
     one; their weights are re-normalised by MotionLib to sum to 1 on that process. With fewer clips than

@@ -1,4 +1,4 @@
-"""CharEnv: one simulated character per env, PD-driven, rewarded 1 per step (spec §5.2)."""
+"""CharEnv: one simulated character per env, PD-driven, rewarded 1 per step (the reference's `char`)."""
 
 from __future__ import annotations
 
@@ -155,7 +155,8 @@ class CharEnv(SimEnv):
 
 
 def action_bounds_pos(char: KinCharModel, zero_center: bool) -> tuple[np.ndarray, np.ndarray]:
-    """PD-target bounds (spec §5.2): spherical ±1.2·max|limit|; hinge mid ± 1.4·half-range."""
+    """PD-target bounds: spherical ±1.2·max|limit|; hinge mid ± 1.4·half-range. The reference's, so a
+    normalised action means the same PD target in both (and its checkpoints act the same here)."""
     lows, highs = [], []
     for joint in char.joints[1:]:
         if joint.type == JointType.SPHERICAL:

@@ -1,4 +1,4 @@
-"""DeepMimicEnv: track a reference clip (spec §5.3).
+"""DeepMimicEnv: track a reference clip (the reference's `deepmimic`).
 
 Reference-state initialisation from the MotionLib, observations with target frames ahead, the
 five-term imitation reward (`deepmimic_rewards`), early termination on ground contact of non-contact
@@ -414,7 +414,7 @@ class DeepMimicEnv(CharEnv):
         reference states (read here unless given); TEST mode also records them, which `mimickit test`
         reports whatever the yaml says. A reset in training leaves its envs' values as the last step's:
         the agents read info after a step, and the reference records tracking at reset only in TEST mode
-        (spec 5.3)."""
+        (kept, so the means compare with its logs)."""
         if env_ids is not None and self._mode != EnvMode.TEST:
             return
         if sim is None or ref is None:

@@ -1,4 +1,4 @@
-"""SimEnv: an environment backed by a physics engine (spec §5.1).
+"""SimEnv: an environment backed by a physics engine (the reference's `SimEnv`).
 
 Construction order: engine → `_build_envs` (characters, objects, motions) → `initialize_sim` →
 action space → sim tensors → data buffers (reward, done, timestep, time, observation).

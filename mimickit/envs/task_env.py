@@ -1,4 +1,5 @@
-"""AMPTaskEnv: an AMP env with a task on top (spec §5.7), the common part of the location and steering envs.
+"""AMPTaskEnv: an AMP env with a task on top, the common part of the location and steering envs (as the
+reference's task envs).
 
 The task envs keep AMP's character, resets and discriminator observation unchanged and add: a task
 observation appended to the character observation, a task reward in `info["reward_terms"]["task"]`

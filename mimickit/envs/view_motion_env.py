@@ -1,4 +1,4 @@
-"""ViewMotionEnv: plays clips through the engine, kinematically (spec §5.8).
+"""ViewMotionEnv: plays clips through the engine, kinematically (the reference's `view_motion`).
 
 Every step overwrites the character's state with the clip at the env's time (clip = env_id mod #clips);
 physics runs at the control rate with motors off, so the engine's body poses are the clip's FK.

@@ -8,8 +8,9 @@ Both sources run through the project's own envs, so a video shows exactly what t
 
 Either engine: frames are rendered from the engine's `mujoco_view` (its MuJoCo model of the scene and
 env 0's MjData), with the character and the ghost found by the env's object ids. The camera follows the
-character's root in the ground plane at a fixed height (spec §5.9 `track`), centred between character
-and ghost when there is one. Rendering needs an offscreen OpenGL: EGL, else OSMesa (`select_gl_backend`).
+character's root in the ground plane at a fixed height (as the reference's `track` camera), centred
+between character and ghost when there is one. Rendering needs an offscreen OpenGL: EGL, else OSMesa
+(`select_gl_backend`).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ GHOST_ALPHA = 0.4
 CAMERA_DISTANCE = 3.0  # m: a standing humanoid fills about half the frame height
 CAMERA_DISTANCE_GHOST = 4.5  # m: character and ghost (2 m apart in the humanoid configs) fit a 4:3 frame
 CAMERA_ELEVATION = -18.0  # degrees
-CAMERA_AZIMUTH = 90.0  # degrees: looking along +y, the side view of MimicKit's camera (spec §5.9)
+CAMERA_AZIMUTH = 90.0  # degrees: looking along +y, the side view of MimicKit's camera (it starts at y − 5)
 LOOKAT_HEIGHT = 0.9  # m
 GRID_HALF_SIZE, GRID_STEP = 8, 1.0  # floor lines around the camera target, so that motion is visible
 GRID_RGBA = np.array([0.55, 0.58, 0.62, 1.0], dtype=np.float32)

@@ -1,6 +1,6 @@
 """MimicKit's command-line parser: `--key v1 v2 ...` tokens, optional `--arg_file`.
 
-Semantics of the reference (spec §1.2): a token starting with `--` (3+ chars) starts a key whose
+The reference's rules, so its arg files read the same: a token starting with `--` (3+ chars) starts a key whose
 values are the following tokens; `#` tokens are comments; keys given on the command line win over the
 same keys in the arg file; booleans are true for `true, True, 1, T, t`.
 

@@ -45,7 +45,7 @@ class Char:
     obs: int  # DeepMimic observation size
     char_obs: int  # AMP / view_motion observation size (character observation only)
     disc_obs: int  # AMP discriminator observation size (10 history steps)
-    add_disc_obs: int  # ADD discriminator observation size (one step, all bodies: spec §5.6)
+    add_disc_obs: int  # ADD discriminator observation size (one step, all bodies, as the reference)
     # PD gain factor for the stance test. MimicKit's gains are sized for policies, not for standing still
     # on zero actions (figures in the test's docstring). Raised just past that, the test checks what it
     # can: the init pose is a stance the engine's model (masses, contacts, joint frames) can hold.
@@ -113,7 +113,7 @@ def test_add_env_sizes_and_reference_state_differences(char: str) -> None:
     c = CHARS[char]
     env = build_env(env_file("add", char), ENGINE, 2, data_paths=DATA)
     assert isinstance(env, ADDEnv) and env.get_num_disc_obs_steps() == 1
-    # DeepMimic's observation and actions; disc obs per spec §5.6: root pos, root rot tan-norm, (J-1) joint
+    # DeepMimic's observation and actions; disc obs as the reference's: root pos, root rot tan-norm, (J-1) joint
     # tan-norms, every body's position, root vel, root ang vel, dof vel.
     assert env.get_obs_space().shape == (c.obs,) and env.get_action_space().shape == (c.dofs,)
     add_disc = 3 + 6 + 6 * (c.bodies - 1) + 3 * c.bodies + 3 + 3 + c.dofs
