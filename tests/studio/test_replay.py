@@ -20,6 +20,7 @@ import pytest
 import zstandard
 
 from mimickit.anim.mjcf_char_model import load_char_model
+from mimickit.anim.motion import load_motion, save_motion
 from mimickit.util.paths import PROJECT_DATA_DIR
 from studio.replay import export_clip_replay, export_policy_replay, frame_stride
 from studio.rollout import source_for_checkpoint
@@ -113,6 +114,18 @@ def test_cli_export_replay(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     assert "91 poses at 30 Hz (3.00 s)" in r.stdout and out.is_file()  # the character was guessed
     assert len(frame_times(recording_of(out))) == 91
+
+
+def test_cli_export_replay_says_a_clips_warning_once_on_one_line(tmp_path: Path) -> None:
+    """NaN values read as 0 are warned of by each loader of the clip (the character guess, the replay's):
+    the command collects them and prints each once."""
+    clip = load_motion(DEMO_CLIP)
+    clip.frames[2:4, 7] = np.nan
+    save_motion(tmp_path / "nan.pkl", clip)
+    r = studio_cli("export-replay", "--motion", tmp_path / "nan.pkl", "--out", tmp_path / "nan.html")
+    assert r.returncode == 0, r.stderr
+    warned = [line for line in r.stderr.splitlines() if "nan.pkl" in line]
+    assert warned == [f"warning: {tmp_path / 'nan.pkl'}: non-finite values in columns [7] replaced by 0"], r.stderr
 
 
 @pytest.mark.parametrize(
