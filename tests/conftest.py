@@ -23,6 +23,9 @@ from mimickit.util.paths import PROJECT_DATA_DIR
 # warp (the Newton engine) asks platform.processor() when it builds its first model, which runs `uname -p`
 # in a subprocess. Python caches the answer, so asking here, before any test, keeps that out of the guard.
 platform.processor()
+# matplotlib builds its font cache the first time it is imported, running `fc-list` when fontconfig is there.
+# Building it here keeps a fresh machine's first plot test from tripping the guard.
+import matplotlib.font_manager  # noqa: E402,F401
 
 PROCESS_MARKS = ("integration", "browser")
 _running: list[pytest.Item] = []  # the test being set up, run or torn down
