@@ -236,9 +236,9 @@ def test_the_run_list_shows_seed_progress_and_end_state(
             assert bad.locator("[data-field=reason]").inner_text() == diverged_run["reason"]
 
             item.click()  # its curves: the resume drawn as a marker
-            page.wait_for_selector("#curves canvas[data-group=returns][data-markers='1']", timeout=15_000)
+            page.wait_for_selector("#curves [data-group=returns][data-markers='1']", timeout=15_000)
             bad.click()  # the diverged run's losses: the non-finite iteration marked
-            page.wait_for_selector("#curves canvas[data-group=losses]:not([data-nonfinite='0'])", timeout=15_000)
+            page.wait_for_selector("#curves [data-group=losses]:not([data-nonfinite='0'])", timeout=15_000)
             page_actions(page, server, clip)
         finally:
             browser.close()
@@ -264,6 +264,7 @@ def page_actions(page, server: StudioProcess, clip: Path) -> None:
         return page.locator(f"#motion-file option[value='{clip}']").count()
 
     wait_for(clip_offered, 30, "the clip in the launch form")
+    page.click("#launch-box summary")  # the form is folded away until asked for
     page.select_option("#motion-file", value=str(clip))
     page.fill("#run-name", "from the form")
     page.fill("#num-envs", "4")
