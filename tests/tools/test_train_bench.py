@@ -23,7 +23,8 @@ def test_train_bench_json_splits_the_training_time():
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["agent"] == "PPO" and out["num_envs"] == 8 and out["steps_per_iter"] == 32
-    assert out["train_ratio"] == pytest.approx(out["train_samples_per_s"] / out["env_steps_per_s"], rel=1e-3)
+    # The ratio is printed to 4 decimals: on a loaded machine it is small, so compare absolutely.
+    assert out["train_ratio"] == pytest.approx(out["train_samples_per_s"] / out["env_steps_per_s"], abs=1e-4)
     assert len(out["train_ratio_per_round"]) == 2
     assert set(out["train_split"]) == {"sim", "inference", "update", "other"}
     assert sum(out["train_split"].values()) == pytest.approx(1.0, abs=1e-3)
