@@ -34,7 +34,7 @@ from mimickit.util.threads import torch_threads
 
 
 def _instrument_tail_idle(engine: MujocoEngine, idle: list[float]) -> None:
-    """Record, per `_run_workers` pass, how long the first thread to finish waited for the last."""
+    """Record, per `_workers_running` pass, how long the first thread to finish waited for the last."""
     workers_running, step_chunk = engine._workers_running, engine._step_chunk
     ends: dict[int, float] = {}
 
