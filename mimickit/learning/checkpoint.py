@@ -42,6 +42,11 @@ MAX_CHECKPOINT_BYTES = int(os.environ.get("MIMICKIT_MAX_CHECKPOINT_BYTES", 2 << 
 _TEMP_RE = re.compile(r"^\.(?P<name>.+\.pt)\.[a-z0-9_]{8}$")
 _MSG_CHARS = 200
 
+# torch warns (several lines) about a file's pickle protocol before it refuses or reads it; our one-line error
+# or the checks below say what matters. Filtered once, here: `warnings.catch_warnings` around each load would
+# swap the process-wide filters under the studio's request threads.
+warnings.filterwarnings("ignore", message=r"Detected pickle protocol", category=UserWarning)
+
 
 # ---------------------------------------------------------------- reading
 
@@ -54,9 +59,7 @@ def read_checkpoint(path: str | Path, map_location: torch.device | str = "cpu") 
         raise MimicKitError(f"model file not found: {path}")
     _check_size(path)
     try:
-        with warnings.catch_warnings():  # torch warns (multi-line) about odd pickle protocols; the error says it
-            warnings.simplefilter("ignore")
-            state = torch.load(path, map_location=map_location, weights_only=True)
+        state = torch.load(path, map_location=map_location, weights_only=True)
     except pickle.UnpicklingError as e:
         detail = _weights_only_detail(e)
         if "global" in detail.lower():  # a class or function reference: code a full unpickler would run
