@@ -392,13 +392,24 @@ class DeepMimicEnv(CharEnv):
             self._update_tracking(env_ids)
             return
         sim, ref = self._sim_state(), self._ref_state()  # a step: its reward terms and tracking errors
-        terms = compute_reward_terms(
+        self._store_info("reward_terms", self._reward_terms(sim, ref), None)
+        self._last_sim = sim  # the state pose termination reads
+        self._update_tracking(None, sim, ref)
+
+    def score_state(self) -> dict[str, dict[str, torch.Tensor]]:
+        """Every env's reward terms and tracking errors for its current state against its reference, as a
+        step computes them after its physics; nothing is stored. A way to check a pose, e.g. a reset's."""
+        sim, ref = self._sim_state(), self._ref_state()
+        return {
+            "reward_terms": self._reward_terms(sim, ref),
+            "tracking": tracking_errors(sim, ref, self._dof_joint_ids),
+        }
+
+    def _reward_terms(self, sim: dict[str, torch.Tensor], ref: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return compute_reward_terms(
             sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
             self.config.root_height_obs,
         )  # fmt: skip
-        self._store_info("reward_terms", terms, None)
-        self._last_sim = sim  # the state pose termination reads
-        self._update_tracking(None, sim, ref)
 
     def _ref_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         ref = self._ref if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._ref.items()}

@@ -57,6 +57,16 @@ class AMPTaskEnv(AMPEnv, abc.ABC):
     def has_markers(self) -> bool:
         return hasattr(self, "_marker_id")
 
+    def get_marker_id(self) -> int:
+        """The engine object of the target marker (built only with visualize), as a viewer looks it up."""
+        if not self.has_markers():
+            raise ValueError("this env has no markers: they are built only with visualize")
+        return self._marker_id
+
+    def get_target_change_time(self) -> torch.Tensor:
+        """Each env's env time [N] (seconds) at which its target is next resampled."""
+        return self._tar_change_time
+
     # -------------------------------------------------------------- targets
     def _resample_targets(self, env_ids: torch.Tensor) -> None:
         """New targets for env_ids and the env time of their next change."""

@@ -264,8 +264,8 @@ def test_view_motion_matches_kinematic_fk_within_1mm():
 
 def test_deepmimic_reference_state_scores_one_and_char_env_holds_its_pose():
     env = build_env(DEEPMIMIC, NEWTON_YAML, 2)
-    _, info = env.reset()
-    env._update_info()  # the reward terms a step computes, for the reset state itself
+    env.reset()
+    info = env.score_state()  # the reward terms a step computes, for the reset state itself
     terms = info["reward_terms"]
     total = sum(env.reward_weights[k] * terms[k] for k in terms)
     torch.testing.assert_close(total, torch.ones(2), atol=1e-3, rtol=0)

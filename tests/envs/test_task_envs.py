@@ -156,12 +156,12 @@ def test_targets_change_on_schedule_and_on_reset(env_file: Path):
     env.step(torch.zeros(2, 28))  # t = 0.5 s
     changed = targets()
     assert (changed - first).norm(dim=-1).min() > 1e-3, "both envs got new targets at 0.5 s"
-    torch.testing.assert_close(env._tar_change_time, torch.full((2,), 1.0))
+    torch.testing.assert_close(env.get_target_change_time(), torch.full((2,), 1.0))
     env.reset(torch.tensor([1]))
     after_reset = targets()
     torch.testing.assert_close(after_reset[0], changed[0])
     assert (after_reset[1] - changed[1]).norm() > 1e-3, "a reset env gets a new target"
-    torch.testing.assert_close(env._tar_change_time, torch.tensor([1.0, 0.5]))
+    torch.testing.assert_close(env.get_target_change_time(), torch.tensor([1.0, 0.5]))
 
 
 @pytest.mark.parametrize("env_file", [LOCATION, STEERING])
@@ -173,7 +173,7 @@ def test_markers_exist_only_with_visualize_and_show_the_target(env_file: Path):
     env.reset()
     for _ in range(3):
         env.step(torch.zeros(2, 28))
-    marker = env.engine.get_root_pos(env._marker_id)
+    marker = env.engine.get_root_pos(env.get_marker_id())
     if isinstance(env, TaskLocationEnv):
         torch.testing.assert_close(marker, env.get_tar_pos(), atol=1e-4, rtol=0)
     else:
