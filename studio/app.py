@@ -14,7 +14,6 @@ import logging
 import threading
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
-from typing import Any
 
 import torch
 import viser
@@ -35,6 +34,7 @@ from studio.api import stream as stream_api
 from studio.api import sweeps as sweeps_api
 from studio.clip_pose import pose_clip
 from studio.library import Library
+from studio.playable import Playable
 from studio.player import Player
 from studio.player_gui import SceneKeys
 from studio.registry import Registry
@@ -72,7 +72,7 @@ class Studio:
     def mode(self) -> str:
         return "rollout" if self.rollout is not None else "clip"
 
-    def active(self) -> Any:
+    def active(self) -> Playable | None:
         """What the scene commands drive: the rollout while one is loaded, else the clip player."""
         return self.rollout if self.rollout is not None else self.player
 

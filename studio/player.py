@@ -7,13 +7,12 @@ GUI and the keyboard all drive the same player, and tests can read it back throu
 from __future__ import annotations
 
 import math
-import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from studio.clip_pose import ClipPose
+from studio.playable import Playable
 from studio.scene import StudioScene
 
 MAX_UPDATE_HZ = 60.0  # a 120 fps clip at speed 2 still sends at most this many scene updates a second
@@ -31,22 +30,14 @@ class PlayerState:
     updates: int = 0  # scene updates sent since start: the benchmark's frames-delivered counter
 
 
-class Player:
+class Player(Playable):
     def __init__(self, scene: StudioScene) -> None:
+        super().__init__("clip-player")
         self.scene = scene
         self.pose: ClipPose | None = None
         self.state = PlayerState()
-        self._lock = threading.RLock()
-        self._wake = threading.Event()
-        self._closed = threading.Event()
-        self._listeners: list[Callable[[Player], None]] = []
         self._root = [0.0, 0.0, 0.0]
-        self._thread = threading.Thread(target=self._run, name="clip-player", daemon=True)
-        self._thread.start()
-
-    def add_listener(self, fn: Callable[[Player], None]) -> None:
-        """`fn(player)` after every drawn frame and every state change (the GUI follows with it)."""
-        self._listeners.append(fn)
+        self._start()
 
     # -- commands ---------------------------------------------------------------------------------
 
@@ -67,14 +58,6 @@ class Player:
             self.state.playing = True
         self._changed()
         self._wake.set()
-
-    def pause(self) -> None:
-        with self._lock:
-            self.state.playing = False
-        self._changed()
-
-    def toggle(self) -> None:
-        self.pause() if self.state.playing else self.play()
 
     def step(self, frames: int = 1) -> None:
         """Pause and move `frames` (may be negative), wrapping when looping, else clamped."""
@@ -127,11 +110,6 @@ class Player:
                 "contacts": dict(zip(pose.feet, pose.contacts(s.frame).tolist(), strict=True)) if pose else {},
             }
 
-    def close(self) -> None:
-        self._closed.set()
-        self._wake.set()
-        self._thread.join(timeout=2)
-
     # -- internals --------------------------------------------------------------------------------
 
     def _wrap_or_clamp(self, frame: int) -> int:
@@ -149,10 +127,6 @@ class Player:
         self._root = pose.root_pos[self.state.frame].astype(float).tolist()
         self.state.updates += 1
         self._changed()
-
-    def _changed(self) -> None:
-        for fn in self._listeners:
-            fn(self)
 
     def _run(self) -> None:
         """Advance by wall-clock time while playing; draw only when the frame index changes."""

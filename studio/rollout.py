@@ -21,10 +21,8 @@ the live end's).
 
 from __future__ import annotations
 
-import threading
 import time
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +36,7 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import DataPaths
 from mimickit.util.warn import collect_warnings
 from studio.checkpoints import configs_beside
+from studio.playable import Playable
 from studio.scene import SUPPORT_WINDOW_S, StudioScene
 
 HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
@@ -262,28 +261,20 @@ class RolloutState:
     root_pos: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
-class RolloutPlayer:
+class RolloutPlayer(Playable):
     """A `Rollout` stepped by a worker thread and drawn in `scene` (None: not drawn, for tests)."""
 
     def __init__(self, rollout: Rollout, scene: StudioScene | None = None, *, play: bool = False) -> None:
+        super().__init__("rollout")
         self.rollout = rollout
         self.scene = scene
         self.state = RolloutState(playing=play)
-        self._lock = threading.RLock()
-        self._wake = threading.Event()
-        self._closed = threading.Event()
-        self._listeners: list[Callable[[RolloutPlayer], None]] = []
         self._ground = np.inf  # the lowest `Frame.low_z` drawn so far (see _height)
         if scene is not None:
             scene.show_rollout(rollout.model, rollout.ghost_bodies)
         with self._lock:
             self._draw()
-        self._thread = threading.Thread(target=self._run, name="rollout", daemon=True)
-        self._thread.start()
-
-    def add_listener(self, fn: Callable[[RolloutPlayer], None]) -> None:
-        """`fn(player)` after every drawn frame and every state change."""
-        self._listeners.append(fn)
+        self._start()
 
     # -- commands (any thread) ----------------------------------------------------------------------
 
@@ -294,14 +285,6 @@ class RolloutPlayer:
             self.state.playing = True
         self._changed()
         self._wake.set()
-
-    def pause(self) -> None:
-        with self._lock:
-            self.state.playing = False
-        self._changed()
-
-    def toggle(self) -> None:
-        self.pause() if self.state.playing else self.play()
 
     def step(self, frames: int = 1) -> None:
         """Pause; forward through the recorded history, simulating at its live end; back for frames < 0."""
@@ -351,9 +334,7 @@ class RolloutPlayer:
             self._draw()
 
     def close(self) -> None:
-        self._closed.set()
-        self._wake.set()
-        self._thread.join(timeout=5)
+        super().close()
         self.rollout.close()
 
     def plays_from(self, folder: Path) -> bool:
@@ -494,13 +475,6 @@ class RolloutPlayer:
             lows.append(f.low_z)
         self._ground = min(self._ground, *lows)
         return max(0.0, min(lows) - self._ground)
-
-    def _changed(self) -> None:
-        for fn in self._listeners:
-            try:
-                fn(self)
-            except Exception as e:  # noqa: BLE001 - a GUI hiccup must not stop the rollout
-                print(f"rollout listener: {e!r}")
 
     def _run(self) -> None:
         """Step at control rate × speed while playing (no bursts to catch up); poll the checkpoint."""

@@ -19,6 +19,7 @@ from studio.api.library import character_path
 from studio.checkpoints import check_finite_checkpoint
 from studio.clip_pose import default_pose, pose_clip
 from studio.library import characters_tried, no_character_line
+from studio.playable import Playable
 from studio.player import Player
 from studio.rollout import RolloutPlayer, source_for_checkpoint
 from studio.runs import CHECKPOINT
@@ -74,7 +75,7 @@ def _player(request: Request) -> Player:
     return player
 
 
-def _target(request: Request) -> Player | RolloutPlayer:
+def _target(request: Request) -> Playable:
     """What the playback commands drive: the rollout while one is loaded, else the clip player."""
     target = studio_of(request).active()
     need(target, "the 3D scene")
