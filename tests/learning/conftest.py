@@ -42,6 +42,18 @@ def ppo_config_dict(**overrides: Any) -> dict[str, Any]:
     return cfg
 
 
+def disc_config_dict(agent_name: str, disc_grad_penalty: float) -> dict[str, Any]:
+    """A small AMP or ADD config for the toy envs: PPO's, a 2x128 discriminator, SGD, tiny buffers."""
+    cfg = ppo_config_dict(agent_name=agent_name, steps_per_iter=8, iters_per_output=2, test_episodes=0)
+    cfg["model"] = dict(cfg["model"], disc_net="fc_2layers_128units")
+    cfg.update(
+        disc_optimizer={"type": "SGD", "learning_rate": 2.5e-4, "weight_decay": 1e-4},
+        disc_epochs=2, disc_batch_size=2, disc_buffer_size=100, disc_replay_samples=5, disc_logit_reg=0.01,
+        disc_grad_penalty=disc_grad_penalty, disc_reward_scale=2.0, task_reward_weight=0.0, disc_reward_weight=1.0,
+    )  # fmt: skip
+    return cfg
+
+
 def awr_config_dict(**overrides: Any) -> dict[str, Any]:
     cfg = ppo_config_dict(agent_name="AWR", awr_temp=1.0, a_weight_clip=20.0)
     del cfg["ppo_clip_ratio"], cfg["norm_adv_clip"]

@@ -22,7 +22,7 @@ from mimickit.learning.experience_buffer import ExperienceBuffer
 from mimickit.learning.normalizer import Normalizer
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
-from tests.learning.conftest import first_step_info, ppo_config_dict
+from tests.learning.conftest import disc_config_dict, first_step_info
 from tests.learning.toy_env import TargetReachEnv
 
 ENGINE = PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
@@ -70,13 +70,7 @@ def test_logit_reg_and_accuracy_by_hand():
 
 
 def amp_config(**overrides) -> AMPAgentConfig:
-    cfg = ppo_config_dict(agent_name="AMP", steps_per_iter=8, iters_per_output=2, test_episodes=0)
-    cfg["model"] = dict(cfg["model"], disc_net="fc_2layers_128units")
-    cfg.update(
-        disc_optimizer={"type": "SGD", "learning_rate": 2.5e-4, "weight_decay": 1e-4},
-        disc_epochs=2, disc_batch_size=2, disc_buffer_size=100, disc_replay_samples=5, disc_logit_reg=0.01,
-        disc_grad_penalty=5.0, disc_reward_scale=2.0, task_reward_weight=0.0, disc_reward_weight=1.0,
-    )  # fmt: skip
+    cfg = disc_config_dict("AMP", disc_grad_penalty=5.0)
     cfg.update(overrides)
     return AMPAgentConfig(**cfg)
 
