@@ -387,7 +387,9 @@ class BaseAgent(nn.Module, abc.ABC):
         update_normalizer = self._need_normalizer_update()
         start = time.perf_counter()
         self._sim_time = 0.0
-        with torch.no_grad(), torch_threads(1):  # see ROLLOUT_THREADS
+        # One torch thread while the env steps: its tensors are small ([N, ...] per env), so a second thread
+        # buys only a fork/join per op and spins on the core a MuJoCo worker needs; the update uses all.
+        with torch.no_grad(), torch_threads(1):
             if not self._rollout_train(self.config.steps_per_iter):
                 return None
         collected = time.perf_counter()
