@@ -309,6 +309,11 @@ class MujocoEngine(Engine):
         self._gather(ids)
         self._refresh(ids, contacts=False)
 
+    def pending_edits(self) -> np.ndarray:
+        """Per env, whether setter edits wait to be written into its MjData (by the next step or a getter
+        that needs kinematics): a reset whose observations come from the state it set leaves them waiting."""
+        return self._dirty.copy()
+
     def _push_edits(self) -> np.ndarray:
         """Write setter edits of dirty envs into their MjData; returns their ids. Enough before a step:
         `mj_step` recomputes all that depends on qpos/qvel, and the step's refresh covers every env, so

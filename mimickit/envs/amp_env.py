@@ -58,6 +58,11 @@ class AMPEnv(DeepMimicEnv):
     def get_num_disc_obs_steps(self) -> int:
         return self._num_disc_obs_steps
 
+    def get_disc_history(self) -> dict[str, torch.Tensor]:
+        """The character's last `num_disc_obs_steps` states the disc obs are built from, oldest first
+        ([N, steps, ...] per field, world frame): what the discriminator sees, before it is made relative."""
+        return self._disc_hist
+
     def fetch_disc_obs_demo(self, num_samples: int) -> torch.Tensor:
         """Disc obs [num_samples, disc_obs_dim] of the clips: motions drawn by weight, end times drawn
         like a reset (uniform over the clip with `rand_reset`, else 0), history reaching back before them."""

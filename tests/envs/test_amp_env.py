@@ -85,7 +85,7 @@ def test_a_step_shifts_the_history_and_appends_the_live_state():
         torch.testing.assert_close(newest[name], live[name], msg=name)
     root_xy = env.engine.get_root_pos(env.get_char_id())[:, :2]
     for k in range(10):  # positions are relative to the newest root
-        hist_xy = env._disc_hist["root_pos"][:, k, :2]
+        hist_xy = env.get_disc_history()["root_pos"][:, k, :2]
         torch.testing.assert_close(disc_step_parts(info["disc_obs"], k)["root_pos"][:, :2], hist_xy - root_xy)
 
 

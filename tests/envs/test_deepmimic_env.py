@@ -227,7 +227,7 @@ def test_reset_observation_is_the_engine_state_observed(global_obs):
         env.reset()
         env.step(action)
         obs, _ = env.reset(ids)
-        assert env.engine._dirty[ids.numpy()].all()  # the reset did not read the engine (no sync yet)
+        assert env.engine.pending_edits()[ids.numpy()].all()  # the reset did not read the engine (no sync yet)
         if k == 1:  # read the engine: this syncs its kinematics for the reset envs before the next step
             from_engine = env.compute_obs(ids)
             torch.testing.assert_close(obs[ids], from_engine, atol=1e-5, rtol=0)
