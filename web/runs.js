@@ -36,15 +36,46 @@ export function initRuns(theStream) {
     if ($("max-samples").value) body.max_samples = Number($("max-samples").value);
     if ($("motion-file").value) body.motion_file = $("motion-file").value;
     if ($("rand-seed").value !== "") body.rand_seed = Number($("rand-seed").value);
+    if ($("num-cpus").value !== "") body.num_cpus = Number($("num-cpus").value);
+    if ($("num-gpus").value !== "") body.num_gpus = Number($("num-gpus").value);
     try {
-      const run = await api("POST", "/api/runs", body);
+      const values = sweepValues($("sweep-values").value);
+      if ($("sweep-dataset").checked) {
+        if (!body.motion_file || !body.motion_file.endsWith(".yaml")) throw new Error("sweep: choose a dataset as the clip to run one run per clip");
+        body.dataset = body.motion_file;
+        delete body.motion_file;
+      }
+      if (Object.keys(values).length || body.dataset) {
+        const sweep = await api("POST", "/api/sweeps", { ...body, values });
+        selectRun(sweep.runs[sweep.runs.length - 1].id);
+      } else {
+        selectRun((await api("POST", "/api/runs", body)).id);
+      }
       $("launch-error").textContent = "";
-      selectRun(run.id);
       await refreshRuns();
     } catch (e) {
       $("launch-error").textContent = e.message;
     }
   });
+}
+
+// "rand_seed=0,1,2" a line -> {rand_seed: [0, 1, 2]}; numbers stay numbers, the server checks keys and values.
+export function sweepValues(text) {
+  const values = {};
+  text.split("\n").map((l) => l.trim()).filter(Boolean).forEach((line, i) => {
+    const eq = line.indexOf("=");
+    if (eq < 1) throw new Error(`sweep, line ${i + 1}: write key=value1,value2 (got "${line}")`);
+    const key = line.slice(0, eq).trim().replace(/^--/, "");
+    values[key] = line.slice(eq + 1).split(",").map((v) => v.trim()).filter((v) => v !== "")
+      .map((v) => (Number.isFinite(Number(v)) ? Number(v) : v));
+  });
+  return values;
+}
+
+// A sweep's runs, ticked together and compared.
+function compareSweep(sweepId) {
+  for (const { run } of runNodes.values()) compareSelection.toggle(run.id, run.sweep_id === sweepId);
+  showCompare(true);
 }
 
 // After a user's action: the new list at once (the stream would bring it within a second).
@@ -115,6 +146,7 @@ function buildRunNode(run) {
     el("div", { class: "meta" }, field("clip"), " on ", field("char"), " · ", field("envs"), " · seed ", field("seed")),
     el("div", { class: "meta" }, f.progress, " ", field("samples")),
     el("div", { class: "meta" }, field("elapsed"), " · ", field("rate"), " · test return ", field("test-return"), f.resumes),
+    el("div", { class: "meta" }, field("sweep")),
     f.reason,
     el("div", { class: "actions" },
       act("Stop", (r) => runAction(r, "stop")),
@@ -122,7 +154,8 @@ function buildRunNode(run) {
       act("Again", (r) => runAction(r, "again")),
       act("Rollout", (r) => loadRollout({ run_id: r.id })),
       act("Inspect", (r) => inspectCheckpoint(r.checkpoint)),
-      act("Delete", (r) => deleteRun(r))));
+      act("Delete", (r) => deleteRun(r)),
+      act("Compare sweep", (r) => compareSweep(r.sweep_id))));
   return entry;
 }
 
@@ -157,6 +190,9 @@ function updateRunNode({ run, node, fields: f }) {
   f.Rollout.disabled = !run.checkpoint;
   f.Inspect.disabled = !run.checkpoint;
   f.Delete.disabled = active;
+  set(f.sweep, run.sweep_id ? `sweep #${run.sweep_id}` : "");
+  f.sweep.parentNode.hidden = !run.sweep_id;
+  f["Compare sweep"].hidden = !run.sweep_id;
 }
 
 // POSTs carry a JSON body (the server refuses cross-site form posts).

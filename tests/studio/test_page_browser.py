@@ -196,3 +196,36 @@ def test_narrow_screen_stacks_with_a_visible_3d_view(browser, server: StudioProc
     page.screenshot(path=str(shot))
     assert page.errors == []
     page.close()
+
+
+def test_a_sweep_from_the_form_runs_one_per_value_and_compares_as_a_group(browser, server: StudioProcess) -> None:
+    """The launch form's sweep field queues one run per value through POST /api/sweeps (the stand-in
+    trainer here; tests/studio/test_ray_executor.py runs a sweep of real trainers on a Ray head); the runs
+    carry their sweep in the list, and "Compare sweep" overlays exactly that sweep's runs."""
+    before = {r["id"] for r in server.get("/api/runs").json()}
+    page = open_page(browser, server, 1280, 720)
+    page.wait_for_selector("#arg-file option[value$='short.txt']", state="attached")
+    page.locator("#launch-box summary").click()
+    page.locator("#arg-file").select_option(str(server.runs_dir / "args" / "short.txt"))
+    page.locator("#sweep-values").fill("rand_seed=7,8\nnum_envs=2")
+    page.locator("#launch-button").click()
+    wait_for(lambda: len({r["id"] for r in server.get("/api/runs").json()} - before) == 2, 30, "two sweep runs")
+    new = [r for r in server.get("/api/runs").json() if r["id"] not in before]
+    assert {r["config"]["rand_seed"] for r in new} == {7, 8} and {r["config"]["num_envs"] for r in new} == {2}
+    (sweep,) = {r["sweep_id"] for r in new}
+    assert sweep is not None
+    for r in new:
+        wait_for(lambda i=r["id"]: server.get(f"/api/runs/{i}").json()["status"] == "finished", 30, "the run to end")
+    node = page.locator(f'[data-run-id="{new[0]["id"]}"]')
+    assert f"sweep #{sweep}" in node.inner_text()
+    node.locator('[data-action="compare sweep"]').click()
+    page.locator("#compare-plots [data-metric=train_return][data-series='2']").wait_for(timeout=15_000)
+    assert page.locator("#compare-button").inner_text() == "Compare 2"
+    assert page.locator("#compare-plots [data-metric=train_return][data-series='3']").count() == 0
+    # A line that is not key=values is one error line under the form, and nothing is queued.
+    page.locator("#sweep-values").fill("rand_seed")
+    page.locator("#launch-button").click()
+    page.wait_for_function("document.querySelector('#launch-error').textContent.includes('key=value1,value2')")
+    assert len(server.get("/api/runs").json()) == len(before) + 2
+    assert page.errors == []
+    page.close()
