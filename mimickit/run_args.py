@@ -46,7 +46,8 @@ LOGGERS = ("txt", "tb", "wandb")
 MAX_NUM_ENVS = 65_536
 MAX_SEED = 2**62
 _BOOL_ARGS = ("save_int_models", "visualize", "video", "json")
-_MULTI_VALUE_ARGS = ("devices",)
+MULTI_VALUE_ARGS = ("devices",)
+"""Arguments that take several values (`--devices cpu cpu`)."""
 _DEVICE_RE = re.compile(r"^(cpu|cuda)(:(\d+))?$")
 
 
@@ -59,7 +60,7 @@ def check_run_args(args: ArgParser, probe_out_dir: bool = True) -> None:
             hint = f" (did you mean --{near}?)" if near else f" (known: {', '.join(RUN_ARGS)})"
             raise MimicKitError(f"unknown argument --{_short(key)}{_where(args, key)}{hint}")
         n = len(args.parse_strings(key))
-        if n > 1 and key not in _MULTI_VALUE_ARGS:
+        if n > 1 and key not in MULTI_VALUE_ARGS:
             raise MimicKitError(f"--{key}{_where(args, key)} takes one value, got {n}")
     mode = args.parse_string("mode", "train")
     _check_choice(args, "mode", MODES)

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mimickit.run_args import MULTI_VALUE_ARGS
 from mimickit.run_folder import MODEL_FILE, EndState, RunFolder
 from mimickit.util.paths import IMPORT_ROOT
 from studio.executors import Executor, Job, JobState, Launch, make_executor
@@ -67,8 +68,8 @@ def train_command(
         "model_file": model_file,
     }
     for key, value in {**optional, **(extra or {})}.items():
-        if value is not None:
-            argv += [f"--{key}", str(value)]
+        if value is not None:  # "cpu cpu" for --devices: one argv item per value, as a shell would split it
+            argv += [f"--{key}", *(str(value).split() if key in MULTI_VALUE_ARGS else [str(value)])]
     return argv
 
 

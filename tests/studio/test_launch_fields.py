@@ -12,6 +12,7 @@ MimicKit data needed.
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 import time
@@ -199,6 +200,21 @@ def test_a_refused_run_fails_with_the_trainers_line(server: StudioProcess) -> No
     assert run["status"] == "failed" and run["exit_code"] == ExitCode.REFUSED
     assert run["reason"] == f"unknown argument --num_env in {typo} (did you mean --num_envs?)"
     assert RunFolder(run["out_dir"]).read_state() is None  # refused before anything started
+
+
+def test_a_sweep_value_of_devices_trains_in_two_processes(server: StudioProcess) -> None:
+    """A swept --devices "cpu cpu" reaches the real trainer as two values: one run (a Ray job, with that
+    executor) that is itself a two-process run."""
+    values = {"devices": ["cpu cpu"], "num_envs": [4], "max_samples": [2 * 2 * PER_ITER]}
+    r = server.post("/api/sweeps", {"arg_file": DEMO_ARGS, "values": values, "name": "two procs", "rand_seed": 3})
+    assert r.status_code == 201, r.text
+    (run,) = r.json()["runs"]
+    run = ended(server, run["id"])
+    assert run["status"] == "finished", console(run)
+    assert run["command"][run["command"].index("--devices") + 1 :][:2] == ["cpu", "cpu"]
+    record = json.loads(RunFolder(run["out_dir"]).args_file.read_text())
+    assert record["launch"]["world_size"] == 2, record["launch"]
+    assert len(data_rows(server, run["id"])) >= 1
 
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
