@@ -9,6 +9,7 @@ cases expect the request accepted. A server that crashes fails every case after 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import io
 import re
@@ -16,6 +17,7 @@ import shutil
 import socket
 import threading
 import time
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -27,6 +29,7 @@ import torch
 import viser
 from websockets.sync.client import connect as ws_connect
 
+from mimickit.anim.motion import load_motion, save_motion
 from tests.conftest import DEMO_CLIP
 from tests.hostile import http_payloads as P
 from tests.studio.conftest import StudioProcess, write_checkpoint_dir
@@ -326,8 +329,12 @@ def test_hostile_uploads_are_refused(srv: StudioProcess, body: bytes) -> None:
         pytest.param("nul\x00byte.pkl", "nul_byte", id="ok-upload-name-nul-byte"),
     ],
 )
-def test_upload_names_become_safe_names(srv: StudioProcess, filename: str, stem: str) -> None:
-    r = srv.post("/api/motions/upload", content=DEMO_CLIP.read_bytes(), params={"filename": filename})
+def test_upload_names_become_safe_names(srv: StudioProcess, filename: str, stem: str, tmp_path: Path) -> None:
+    # Bytes of their own per case: uploads are deduplicated by content (the same bytes return the first file).
+    demo = load_motion(DEMO_CLIP)
+    clip = tmp_path / "clip.pkl"
+    save_motion(clip, dataclasses.replace(demo, fps=demo.fps + zlib.crc32(filename.encode()) % 1000 / 100))
+    r = srv.post("/api/motions/upload", content=clip.read_bytes(), params={"filename": filename})
     assert r.status_code == 201, r.text
     saved = Path(r.json()["path"])
     assert saved.parent.resolve() == (srv.runs_dir / "uploads").resolve() and saved.is_file()
