@@ -10,6 +10,10 @@ messages that carry a new character pose (what a browser would draw) over `--sec
 server's own count of scene updates. Latency: `--requests` GETs spread over `--clients` concurrent
 httpx clients, round robin over health, scene state, runs and motions, while the clip keeps playing.
 `--train-cmd` runs a command (e.g. a training run) in the background during both measurements.
+`--duration S --streams N`: instead, `--clients` request loops and N open `/api/stream` readers for S seconds
+(errors counted):
+
+    python benchmarks/studio_bench.py --clients 40 --streams 10 --duration 30 --train-cmd "mimickit train ..."
 """
 
 from __future__ import annotations
@@ -133,6 +137,44 @@ async def api_latency(base: str, clients: int, requests: int) -> dict[str, list[
     return out
 
 
+async def load_for(
+    base: str, clients: int, streams: int, seconds: float
+) -> tuple[dict[str, list[float]], int, list[int]]:
+    """`clients` GET loops and `streams` open `GET /api/stream` readers for `seconds`: latencies (ms) per
+    endpoint, the number of failed requests or streams, and the events each stream received."""
+    out: dict[str, list[float]] = {e: [] for e in ENDPOINTS}
+    errors, events = [0], [0] * streams
+    deadline = time.perf_counter() + seconds
+
+    async def loop_client(k: int) -> None:
+        async with httpx.AsyncClient(base_url=base, timeout=60) as client:
+            i = k
+            while time.perf_counter() < deadline:
+                path, i = ENDPOINTS[i % len(ENDPOINTS)], i + 1
+                t0 = time.perf_counter()
+                try:
+                    (await client.get(path)).raise_for_status()
+                except httpx.HTTPError:
+                    errors[0] += 1
+                    continue
+                out[path].append((time.perf_counter() - t0) * 1000)
+
+    async def stream_client(k: int) -> None:
+        async with httpx.AsyncClient(base_url=base, timeout=60) as client:
+            try:
+                async with client.stream("GET", "/api/stream") as r:
+                    r.raise_for_status()
+                    async for line in r.aiter_lines():
+                        events[k] += line.startswith("event:")
+                        if time.perf_counter() > deadline:
+                            break
+            except httpx.HTTPError:
+                errors[0] += 1
+
+    await asyncio.gather(*(loop_client(k) for k in range(clients)), *(stream_client(k) for k in range(streams)))
+    return out, errors[0], events
+
+
 def percentiles(values: list[float]) -> tuple[float, float]:
     return float(np.percentile(values, 50)), float(np.percentile(values, 99))
 
@@ -147,6 +189,10 @@ def main() -> None:
     ap.add_argument("--clients", type=int, default=50)
     ap.add_argument("--requests", type=int, default=2000, help="total API requests")
     ap.add_argument("--train-cmd", help="a command to run in the background while measuring")
+    ap.add_argument("--streams", type=int, default=0, help="with --duration: open /api/stream readers")
+    ap.add_argument(
+        "--duration", type=float, help="instead of --requests: --clients GET loops (and --streams) for this long"
+    )
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     if args.url and not is_loopback(urlparse(args.url).hostname or ""):
@@ -156,11 +202,15 @@ def main() -> None:
         viser_port = c.get("/api/health").json()["viser_port"]
         loaded = c.post("/api/scene/load_clip", json={"path": args.clip}).raise_for_status().json()
         c.post("/api/scene/configure", json={"speed": args.speed, "loop": True}).raise_for_status()
-        c.post("/api/scene/play").raise_for_status()
+        c.post("/api/scene/play", json={}).raise_for_status()
         poses, updates, seconds = asyncio.run(count_delivered_poses(base, viser_port, args.seconds))
         single = asyncio.run(api_latency(base, 1, 200))  # service time, without queueing
-        latency = asyncio.run(api_latency(base, args.clients, args.requests))
-        c.post("/api/scene/pause")
+        errors, events = 0, []
+        if args.duration:
+            latency, errors, events = asyncio.run(load_for(base, args.clients, args.streams, args.duration))
+        else:
+            latency = asyncio.run(api_latency(base, args.clients, args.requests))
+        c.post("/api/scene/pause", json={})
 
     server_fps = updates / seconds
     target = min(loaded["fps"] * args.speed, 60.0)
@@ -180,6 +230,8 @@ def main() -> None:
         "api_1client_p50_ms": round(percentiles([v for vs in single.values() for v in vs])[0], 2),
         "per_endpoint_ms": {k: [round(x, 1) for x in percentiles(v)] for k, v in latency.items()},
     }
+    if args.duration:
+        result.update(duration_s=args.duration, streams=args.streams, errors=errors, stream_events=events)
     if args.json:
         print(json.dumps(result))
         return
@@ -189,6 +241,8 @@ def main() -> None:
         f"  API, {args.clients} concurrent clients, {len(everything)} requests: "
         f"p50 {result['api_p50_ms']} ms, p99 {result['api_p99_ms']} ms"
     )
+    if args.duration:
+        print(f"  for {args.duration:g} s with {args.streams} streams open: {errors} errors, stream events {events}")
     print(f"  API, one client: p50 {result['api_1client_p50_ms']} ms")
     for path, (p50, p99) in result["per_endpoint_ms"].items():
         print(f"    {path:<20} p50 {p50:7.1f} ms  p99 {p99:7.1f} ms")
