@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from mimickit.util.paths import PROJECT_DATA, DataPaths
+
 
 class DoneFlags(IntEnum):
     NULL = 0
@@ -46,6 +48,8 @@ class BaseEnv(abc.ABC):
     done [N] int DoneFlags, info). The returned tensors are the env's own buffers, updated in place by
     later calls: copy what you keep.
     """
+
+    data_paths: DataPaths = PROJECT_DATA  # where its `data/...` files are found (SimEnv takes it as an argument)
 
     def __init__(self, num_envs: int, device: torch.device | str) -> None:
         self.num_envs = num_envs

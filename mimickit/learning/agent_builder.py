@@ -28,7 +28,7 @@ def build_agent(
 ) -> BaseAgent:
     """The agent described by `agent_file` for `env`, on `device`; prints the parameter count (rank 0).
     A `data/agents/...` name is found by `data_paths`, by default the env's."""
-    paths = data_paths or getattr(env, "data_paths", None) or DataPaths()
+    paths = data_paths or env.data_paths
     config = load_agent_config(paths.resolve(agent_file)) if agent_file else DummyAgentConfig()
     agent = build_agent_from_config(config, env, device)
     if verbose and mp_util.is_root_proc():
