@@ -93,7 +93,7 @@ class DeepMimicEnv(CharEnv):
         self._all_env_ids = torch.arange(n, device=dev)
         self._frames: dict[str, torch.Tensor] = {}
         self._tar_pose_obs: torch.Tensor | None = None  # valid from `_advance_clock` until the frames change
-        self._step_state: dict[str, torch.Tensor] | None = None  # the character's state since the last step
+        self._step_state: dict[str, torch.Tensor] | None = None  # the character's state, within one step
         self._reset_batch: ResetBatch | None = None  # the reset in progress
         self._init_frames()
         self._build_reset_pool()
@@ -143,14 +143,19 @@ class DeepMimicEnv(CharEnv):
         self._tracking_count = 0
         self._episode_ends = torch.zeros(len(DoneFlags), dtype=torch.long, device=self.device)
 
+    # The state read once per step (`_step_state`) and a reset's `ResetBatch` hold only while that call
+    # runs: between calls the engine may be set from outside (a viewer, a test), so reads go to it.
     def reset(self, env_ids: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, Any]]:
         try:
             return super().reset(env_ids)
         finally:
-            self._reset_batch = None
+            self._reset_batch = self._step_state = None
 
     def step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
-        out = super().step(action)
+        try:
+            out = super().step(action)
+        finally:
+            self._step_state = None
         if self._mode == EnvMode.TEST:  # why each test episode ended, beside its tracking errors
             self._episode_ends += torch.bincount(out[2].long(), minlength=len(DoneFlags))
         return out
