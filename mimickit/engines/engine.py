@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import abc
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
@@ -353,18 +352,17 @@ class Engine(abc.ABC):
     def set_cmd(self, obj_id: int, cmd: torch.Tensor) -> None:
         """Store the command [N, D] for the control mode (pos targets, vel targets or torques)."""
 
-    @abc.abstractmethod
     def step(self) -> None:
         """Advance one control step (all substeps, all envs) and refresh the state tensors."""
+        with self.stepping():
+            pass
 
-    @contextmanager
-    def stepping(self) -> Iterator[None]:
+    @abc.abstractmethod
+    def stepping(self) -> AbstractContextManager[None]:
         """A control step (as `step`) while the block runs on the calling thread: for a caller's work that
         neither reads nor writes this engine, which may then overlap the physics (the MuJoCo engine's
-        worker threads step the envs meanwhile; Newton's kernels are queued before it). This default
-        runs the block, then the step."""
-        yield
-        self.step()
+        worker threads step the envs meanwhile; Newton's kernels are queued before it). An engine that
+        cannot overlap runs the block, then the step."""
 
     # ------------------------------------------------------------------ timing / misc
     def get_timestep(self) -> float:

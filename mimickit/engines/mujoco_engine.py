@@ -194,10 +194,6 @@ class MujocoEngine(Engine):
         target = self._pd_target if mode == ControlMode.pd_explicit else self._ctrl
         target[:, lay.act_ids] = values
 
-    def step(self) -> None:
-        with self.stepping():
-            pass
-
     @contextmanager
     def stepping(self) -> Iterator[None]:
         """The block runs on the calling thread while the workers run the first pass of substeps."""

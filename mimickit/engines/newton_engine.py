@@ -406,10 +406,6 @@ class NewtonEngine(Engine):
             self._tau[obj_id][:] = torch.maximum(torch.minimum(value, limit), -limit)
             self._write_joint_f(lay, self._tau[obj_id])
 
-    def step(self) -> None:
-        with self.stepping():
-            pass
-
     @contextmanager
     def stepping(self) -> Iterator[None]:
         self._sync()
