@@ -29,8 +29,8 @@ from typing import Any
 import yaml
 
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import IMPORT_ROOT
 from studio.library import one_line
+from studio.runs import child_env
 from studio.settings import Settings
 
 EVALS_DIR = "evals"
@@ -159,8 +159,7 @@ class EvalJobs:
     def _run(self, job: EvalJob) -> None:
         job.status, job.started_at = "running", time.time()
         out_path, err_path = job.folder / "report.json", job.folder / "console.log"
-        path = os.pathsep.join(p for p in (str(IMPORT_ROOT), os.environ.get("PYTHONPATH", "")) if p)
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": path}
+        env = {**os.environ, **child_env()}
         with open(out_path, "wb") as out, open(err_path, "wb") as err:
             self._proc = subprocess.Popen(
                 job.command,

@@ -73,6 +73,13 @@ def train_command(
     return argv
 
 
+def child_env() -> dict[str, str]:
+    """What a studio child process (a trainer, an eval) adds to the server's environment: unbuffered
+    output, and this `mimickit` first on its path, whatever folder it runs in."""
+    path = os.pathsep.join(p for p in (str(IMPORT_ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    return {"PYTHONUNBUFFERED": "1", "PYTHONPATH": path}
+
+
 class RunManager:
     def __init__(self, settings: Settings, registry: Registry, executor: Executor | None = None) -> None:
         self.settings = settings
@@ -286,12 +293,11 @@ class RunManager:
             model_file=cfg.get("model_file"),
             extra=cfg.get("args"),
         )
-        path = os.pathsep.join(p for p in (str(IMPORT_ROOT), os.environ.get("PYTHONPATH", "")) if p)
         return Launch(
             argv=argv,
             work_dir=out_dir,
             console_file=RunFolder(out_dir).console_file,
-            env={"PYTHONUNBUFFERED": "1", "PYTHONPATH": path},
+            env=child_env(),
             num_cpus=cfg.get("num_cpus"),
             num_gpus=cfg.get("num_gpus"),
             name=f"{run.id}: {run.name}",
