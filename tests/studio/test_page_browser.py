@@ -99,6 +99,17 @@ def test_the_3d_view_is_not_covered_and_the_bars_fit(browser, server: StudioProc
     page.close()
 
 
+def settled_frame(server: StudioProcess):
+    """A check for `wait_for`: the paused scene's frame once two reads 0.5 s apart agree."""
+
+    def check() -> int | None:
+        first = state(server)["frame"]
+        time.sleep(0.5)
+        return first if state(server)["frame"] == first else None
+
+    return check
+
+
 def test_space_steps_after_dragging_the_timeline(browser, server: StudioProcess) -> None:
     page = open_page(browser, server, 1280, 720)
     server.post("/api/scene/pause")
@@ -110,8 +121,7 @@ def test_space_steps_after_dragging_the_timeline(browser, server: StudioProcess)
     page.mouse.up()
     assert page.evaluate("document.activeElement.id") == "timeline"  # the slider keeps the focus
     frame = wait_for(lambda: (f := state(server)["frame"]) > 5 and f, what="the drag to seek")
-    time.sleep(0.5)  # the last seek of the drag answered
-    frame = state(server)["frame"]
+    frame = wait_for(settled_frame(server), what="the drag's last seek answered")
     page.keyboard.press(" ")
     wait_for(lambda: state(server)["frame"] == frame + 1, what="Space to step one frame after the drag")
     page.keyboard.press("Enter")

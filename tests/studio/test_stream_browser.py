@@ -23,6 +23,7 @@ pytestmark = [
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
 ]
 IDLE_S = 3.0
+FRAMES_TIMEOUT_S = 60.0
 
 
 def free_port() -> int:
@@ -84,13 +85,15 @@ def test_an_idle_page_makes_no_requests(page, server: Server) -> None:
         requests.append(request.url)
 
     page.on("request", record)
+    # Watch for at least IDLE_S and until four frames have reached the page: a loaded machine's
+    # software-rendered 3D view can hold the page's main thread for seconds, so the window is not fixed.
     labels = {frame_label(page)}
-    deadline = time.monotonic() + IDLE_S
-    while time.monotonic() < deadline:
+    start = time.monotonic()
+    while time.monotonic() - start < IDLE_S or (len(labels) < 4 and time.monotonic() - start < FRAMES_TIMEOUT_S):
         labels.add(frame_label(page))
         time.sleep(0.2)
     assert requests == [], f"the idle page requested {requests}"
-    assert len(labels) > 3, f"the playing clip's frames did not reach the page: {labels}"
+    assert len(labels) >= 4, f"the playing clip's frames did not reach the page in {FRAMES_TIMEOUT_S:.0f} s: {labels}"
     page.click("#step")  # the recorder does see requests: a user's action makes one
     wait_for(lambda: any(u.endswith("/api/scene/step") for u in requests), what="the step request recorded")
     page.remove_listener("request", record)
@@ -104,8 +107,7 @@ def test_focus_on_a_run_button_survives_updates(page, server: Server) -> None:
     wait_for(lambda: stop.is_enabled() and not samples.inner_text().startswith("–"), what="the run training")
     stop.focus()
     before = samples.inner_text()
-    time.sleep(3.0)
-    assert samples.inner_text() != before, "the run's progress did not reach the page in 3 s"
+    wait_for(lambda: samples.inner_text() != before, what="the run's progress reaching the page")
     assert stop.evaluate("b => b === document.activeElement && b.isConnected"), "the focused button lost focus"
     stop.click()  # a click on the updated list lands
     wait_for(
