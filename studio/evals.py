@@ -6,6 +6,8 @@ written there naming the configs the trainer copied beside the checkpoint. The c
 JSON report) and stderr go to files in that folder; one worker thread runs the jobs one after another
 (an eval takes the cores a training needs) and parses the report, so no request waits on it. A job
 that fails says why in one line: `mimickit`'s own `error:` line, else the last line it printed.
+`stop` ends a queued job before it starts and kills a running one's process group; `remove` forgets an
+ended job and deletes its folder.
 
 Jobs live in memory (a restarted server starts with none); their folders stay.
 """
@@ -17,6 +19,7 @@ import contextlib
 import json
 import os
 import queue
+import shutil
 import signal
 import subprocess
 import sys
@@ -35,6 +38,7 @@ from studio.settings import Settings
 
 EVALS_DIR = "evals"
 EVAL_COMMAND = [sys.executable, "-m", "mimickit.cli", "eval"]
+ACTIVE = ("queued", "running")
 
 
 @dataclass
@@ -46,7 +50,7 @@ class EvalJob:
     episodes: int
     folder: Path
     run_id: int | None = None
-    status: str = "queued"  # queued, running, finished, failed
+    status: str = "queued"  # queued, running, then finished, failed or stopped
     error: str | None = None
     rows: list[dict[str, Any]] = field(default_factory=list)
     mean: dict[str, Any] | None = None
@@ -84,7 +88,8 @@ class EvalJobs:
         self._jobs: dict[int, EvalJob] = {}
         self._lock = threading.Lock()
         self._queue: queue.Queue[EvalJob | None] = queue.Queue()
-        self._proc: subprocess.Popen[bytes] | None = None
+        self._proc: subprocess.Popen[bytes] | None = None  # the running job's, set and read under the lock
+        self._next_id = 1  # never reused: a removed job's id does not come back as another job
         self._closed = False
         self._thread = threading.Thread(target=self._work, name="evals", daemon=True)
         self._thread.start()
@@ -105,7 +110,7 @@ class EvalJobs:
         if arg_file is None and not configs:
             raise MimicKitError("an eval needs an arg file or the configs beside the checkpoint")
         with self._lock:
-            job_id = max(self._jobs, default=0) + 1
+            job_id, self._next_id = self._next_id, self._next_id + 1
             folder = self.settings.runs_dir / EVALS_DIR / f"{job_id:04d}-{int(time.time())}"
             folder.mkdir(parents=True, exist_ok=True)
             if arg_file is None:
@@ -125,13 +130,35 @@ class EvalJobs:
         with self._lock:
             return sorted(self._jobs.values(), key=lambda j: -j.id)
 
+    def stop(self, job_id: int) -> bool:
+        """Stop a queued job (it will not start) or a running one (its process group killed): status
+        `stopped`. False when the job had already ended."""
+        with self._lock:
+            job = self._jobs.get(job_id)
+            if job is None or job.status not in ACTIVE:
+                return False
+            running, proc = job.status == "running", self._proc
+            job.status, job.error, job.ended_at = "stopped", None, time.time()
+        if running and proc is not None:
+            _kill_group(proc)
+        return True
+
+    def remove(self, job_id: int) -> bool:
+        """Forget an ended job and delete its folder. False while it is queued or running."""
+        with self._lock:
+            job = self._jobs.get(job_id)
+            if job is None or job.status in ACTIVE:
+                return False
+            del self._jobs[job_id]
+        shutil.rmtree(job.folder, ignore_errors=True)  # a folder this server made under <runs-dir>/evals
+        return True
+
     def close(self) -> None:
         """Stop the worker; a running eval's process group is killed."""
         self._closed = True
         proc = self._proc
-        if proc is not None and proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
+        if proc is not None:
+            _kill_group(proc)
         self._queue.put(None)
         self._thread.join(timeout=5)
 
@@ -151,27 +178,35 @@ class EvalJobs:
             job = self._queue.get()
             if job is None or self._closed:
                 return
+            if job.status != "queued":  # stopped while it waited
+                continue
             try:
                 self._run(job)
             except Exception as e:  # noqa: BLE001 - a job that cannot run is a failed job, not a dead worker
                 self._end(job, "failed", error=one_line(f"could not run the eval: {type(e).__name__}: {e}"))
 
     def _run(self, job: EvalJob) -> None:
-        job.status, job.started_at = "running", time.time()
         out_path, err_path = job.folder / "report.json", job.folder / "console.log"
         env = {**os.environ, **child_env()}
         with open(out_path, "wb") as out, open(err_path, "wb") as err:
-            self._proc = subprocess.Popen(
-                job.command,
-                stdin=subprocess.DEVNULL,
-                stdout=out,
-                stderr=err,
-                cwd=job.folder,
-                env=env,
-                start_new_session=True,  # its own process group: `close` reaches its children too
-            )
-            code = self._proc.wait()
-        self._proc = None
+            with self._lock:  # a `stop` either comes first (the job never starts) or sees the process
+                if job.status != "queued":
+                    return
+                job.status, job.started_at = "running", time.time()
+                self._proc = proc = subprocess.Popen(
+                    job.command,
+                    stdin=subprocess.DEVNULL,
+                    stdout=out,
+                    stderr=err,
+                    cwd=job.folder,
+                    env=env,
+                    start_new_session=True,  # its own process group: `stop` and `close` reach its children too
+                )
+            code = proc.wait()
+        with self._lock:
+            self._proc = None
+            if job.status == "stopped":
+                return
         if code != 0:
             self._end(job, "failed", error=error_line(err_path, code))
             return
@@ -181,11 +216,21 @@ class EvalJobs:
         except (ValueError, KeyError, TypeError) as e:
             self._end(job, "failed", error=one_line(f"mimickit eval printed no report ({type(e).__name__}: {e})"))
             return
-        job.rows, job.mean = rows, mean
-        self._end(job, "finished")
+        self._end(job, "finished", rows=rows, mean=mean)
 
-    def _end(self, job: EvalJob, status: str, error: str | None = None) -> None:
-        job.status, job.error, job.ended_at = status, error, time.time()
+    def _end(self, job: EvalJob, status: str, error: str | None = None, **report: Any) -> None:
+        """The job's end, with its `rows` and `mean` when it finished; a job stopped meanwhile stays stopped."""
+        with self._lock:
+            if job.status == "stopped":
+                return
+            job.status, job.error, job.ended_at = status, error, time.time()
+            job.rows, job.mean = report.get("rows", job.rows), report.get("mean", job.mean)
+
+
+def _kill_group(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
 
 
 def error_line(console: Path, code: int) -> str:

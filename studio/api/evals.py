@@ -1,5 +1,5 @@
-"""Evaluation endpoints: `mimickit eval` of a checkpoint as a background job, its table, and a
-rollout of one row's clip."""
+"""Evaluation endpoints: `mimickit eval` of a checkpoint as a background job, its table, a rollout of
+one row's clip, and stopping or deleting a job. `GET /api/stream`'s `evals` event pushes the job list."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Request
+from fastapi import APIRouter, HTTPException, Request, Response
 from pydantic import Field
 
 from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE
@@ -16,7 +16,7 @@ from studio.api.bodies import OneLineErrors, StrictBody
 from studio.api.runs import resolve_arg_file
 from studio.api.scene import roll_out
 from studio.checkpoints import configs_beside, configs_from_arg_file
-from studio.evals import EvalJob, EvalJobs, clip_env_config
+from studio.evals import ACTIVE, EvalJob, EvalJobs, clip_env_config
 from studio.runs import CHECKPOINT
 from studio.security import confine
 
@@ -58,7 +58,8 @@ def _job(request: Request, job_id: int) -> EvalJob:
 def start_eval(body: StartEval, request: Request) -> dict[str, Any]:
     """Queue `mimickit eval --json` of a run's checkpoint (`run_id`) or a checkpoint file, on each clip
     of `motion_file` (a clip or a dataset; default the env config's), `episodes` test episodes each.
-    It runs as a subprocess in `<runs-dir>/evals/<id>/`; poll `GET /api/evals/{id}`."""
+    It runs as a subprocess in `<runs-dir>/evals/<id>/`; `GET /api/evals/{id}` (or the stream's
+    `evals` event) says when it has ended."""
     studio = studio_of(request)
     s = studio.settings
     if (body.run_id is None) == (body.checkpoint is None):
@@ -95,10 +96,30 @@ def list_evals(request: Request) -> list[dict[str, Any]]:
 
 @router.get("/{job_id}")
 def get_eval(job_id: int, request: Request) -> dict[str, Any]:
-    """`status` (queued, running, finished, failed), `error` (one line) and, when finished, `rows`
+    """`status` (queued, running, finished, failed, stopped), `error` (one line) and, when finished, `rows`
     (one per clip: clip, weight, episodes, mean_ep_len, full_length_frac, mean_return, pos_err_m,
     paper_pos_err_m, paper_dof_vel_err) and their episode-weighted `mean`."""
     return _job(request, job_id).to_json()
+
+
+@router.post("/{job_id}/stop")
+def stop_eval(job_id: int, request: Request) -> dict[str, Any]:
+    """Stop a queued job (it never starts) or a running one (its `mimickit eval` process group is
+    killed): status `stopped`. 409 when it had already ended."""
+    job = _job(request, job_id)
+    if not jobs_of(request).stop(job_id):
+        raise HTTPException(409, f"eval {job_id} has already ended ({job.status})")
+    return job.to_json()
+
+
+@router.delete("/{job_id}", status_code=204)
+def delete_eval(job_id: int, request: Request) -> Response:
+    """Remove an ended job from the list and delete its folder (`<runs-dir>/evals/<id>/`). 409 while it
+    is queued or running: stop it first."""
+    job = _job(request, job_id)
+    if job.status in ACTIVE or not jobs_of(request).remove(job_id):
+        raise HTTPException(409, f"eval {job_id} is {job.status}; stop it first")
+    return Response(status_code=204)
 
 
 @router.post("/{job_id}/rollout")

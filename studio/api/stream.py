@@ -10,13 +10,15 @@ Events (each `data:` is JSON):
   new rollout, checkpoint or step numbering: start the plot again);
 - `runs`: the run list (`GET /api/runs` rows without the clock-driven `duration_s`, plus
   `checkpoint_mtime`), sent at connect and when a run's content changed (checked once a second);
+- `evals`: the eval jobs (`GET /api/evals`), sent at connect and when a job's status or rows changed
+  (checked once a second);
 - `metrics` (with `?run=ID`): that run's new `metrics.jsonl` rows `{run, reset, start, rows}`
   (`start` = the first row's index; the first batch has `reset`);
 - `log` (with `?run=ID`): that run's new `console.log` lines `{run, reset, lines}`;
 - `heartbeat` every few seconds `{time}`: a page that hears nothing for three of them treats the server
   as gone (and proxies see traffic).
 
-Files and SQLite are read in worker threads (`studio.live_state`), never on the event loop. The
+Files, SQLite and the eval jobs are read in worker threads (`studio.live_state`), never on the event loop. The
 route sits under `/api`, so the Host, Origin and token checks of `RequestGuard` apply (an
 EventSource cannot send headers: `?token=`).
 """
@@ -40,7 +42,7 @@ from studio.api.runs import run_json
 from studio.live_state import RUN_VOLATILE_KEYS, LiveState, LogFollower, MetricsFollower, RolloutFollower
 
 router = APIRouter(tags=["stream"], route_class=OneLineErrors)
-TOPICS = ("scene", "rollout", "runs", "metrics", "log")
+TOPICS = ("scene", "rollout", "runs", "evals", "metrics", "log")
 RUN_TOPICS = ("metrics", "log")
 QUERY_KEYS = ("topics", "run", "token")
 HEARTBEAT_S = 5.0
@@ -53,7 +55,7 @@ def live_of(request: Request) -> LiveState:
     state = request.app.state
     if getattr(state, "live", None) is None:
         studio = studio_of(request)
-        state.live = LiveState(lambda: _scene_state(studio), lambda: _run_list(studio))
+        state.live = LiveState(lambda: _scene_state(studio), lambda: _run_list(studio), lambda: _eval_list(state))
     return state.live
 
 
@@ -69,6 +71,11 @@ def _run_list(studio: Any) -> list[dict[str, Any]]:
         row["checkpoint_mtime"] = _mtime(row.get("checkpoint"))
         rows.append(row)
     return rows
+
+
+def _eval_list(state: Any) -> list[dict[str, Any]]:
+    jobs = getattr(state, "evals", None)  # made by the first `/api/evals` request: none before
+    return [j.to_json() for j in jobs.list()] if jobs is not None else []
 
 
 def _mtime(path: str | None) -> float | None:
@@ -109,8 +116,8 @@ class Subscription:
 
 @router.get("/stream", response_class=EventSourceResponse)
 async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> AsyncIterator[ServerSentEvent]:
-    """Scene state, rollout history, run list, and one run's metrics rows and log lines, pushed when
-    they change (see the module's text for the events)."""
+    """Scene state, rollout history, run list, eval jobs, and one run's metrics rows and log lines,
+    pushed when they change (see the module's text for the events)."""
     studio = studio_of(request)
     live = live_of(request)
     hello = {"server": live.server_id, "topics": sorted(sub.topics), "run": sub.run, "heartbeat_s": HEARTBEAT_S}
@@ -119,7 +126,7 @@ async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> A
     metrics = MetricsFollower(folder.metrics_file) if folder and "metrics" in sub.topics else None
     log = LogFollower(folder.console_file) if folder and "log" in sub.topics else None
     rollout = RolloutFollower() if "rollout" in sub.topics else None
-    seen_scene = seen_runs = -1
+    seen_scene = seen_runs = seen_evals = -1
     last_sent = time.monotonic()
     async with live.subscribe():
         while True:
@@ -140,6 +147,11 @@ async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> A
                 if "runs" in sub.topics:
                     yield ServerSentEvent(event="runs", data=live.runs.value)
                     sent = True
+            if live.evals.version != seen_evals:
+                seen_evals = live.evals.version
+                if "evals" in sub.topics:
+                    yield ServerSentEvent(event="evals", data=live.evals.value)
+                    sent = True
             if metrics is not None:
                 for batch in await anyio.to_thread.run_sync(metrics.read):
                     yield ServerSentEvent(event="metrics", data={"run": sub.run, **batch})
@@ -158,4 +170,4 @@ async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> A
             timeout = HEARTBEAT_S - (time.monotonic() - last_sent)
             if metrics is not None or log is not None:
                 timeout = min(timeout, FOLLOW_PERIOD_S)
-            await live.wait((seen_scene, seen_runs), max(0.01, timeout))
+            await live.wait((seen_scene, seen_runs, seen_evals), max(0.01, timeout))

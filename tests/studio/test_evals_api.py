@@ -1,6 +1,7 @@
 """Eval jobs through the real server: `mimickit eval --json` of a checkpoint as a subprocess in the
-job's own folder, its table, a failure reported in one line, a rollout of one row's clip, and requests
-that name files outside the allowed folders."""
+job's own folder, its table, a failure reported in one line, a rollout of one row's clip, the jobs
+pushed by `GET /api/stream` (`evals`), stopping a queued or running job and deleting an ended one, and
+requests that name files outside the allowed folders."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from tests.studio.conftest import StudioProcess, wait_for, write_arg_file
+from tests.studio.test_stream import EventReader
 
 pytestmark = pytest.mark.integration
 
@@ -59,6 +61,77 @@ def test_a_failing_eval_says_why(studio: StudioProcess) -> None:
     assert done["status"] == "failed" and done["rows"] == []
     assert done["error"].startswith("mimickit eval failed (exit code") and "\n" not in done["error"]
     assert studio.post(f"/api/evals/{done['id']}/rollout", {"row": 0}).status_code == 409
+
+
+def processes_in(folder: Path) -> list[int]:
+    """Pids of the processes whose working directory is `folder` (an eval runs in its job's folder)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and Path(proc / "cwd").resolve() == folder.resolve():
+                pids.append(int(proc.name))
+        except OSError:
+            continue  # gone meanwhile, or not ours to read
+    return pids
+
+
+def job_in(jobs: object, job_id: int) -> dict | None:
+    return next((j for j in jobs if j["id"] == job_id), None)  # type: ignore[union-attr]
+
+
+def test_jobs_pushed_by_the_stream_stopped_and_deleted(studio: StudioProcess) -> None:
+    stream = EventReader(studio, "?topics=evals")
+    try:
+        assert stream.next()[0] == "hello"
+        stream.until(lambda n, d: n == "evals", what="the eval jobs at connect")
+        quick = studio.post("/api/evals", {"checkpoint": SHIPPED, "episodes": 1}).json()
+        waiting = studio.post("/api/evals", {"checkpoint": SHIPPED, "episodes": 1}).json()
+        assert waiting["status"] == "queued"  # one job at a time: it waits for `quick`
+        stopped = studio.post(f"/api/evals/{waiting['id']}/stop", json={})
+        assert stopped.status_code == 200 and stopped.json()["status"] == "stopped"
+        done = stream.until(
+            lambda n, d: n == "evals" and (job_in(d, quick["id"]) or {}).get("status") == "finished",
+            timeout=240,
+            what="the first job finished",
+        )
+        assert job_in(done, quick["id"])["rows"][0]["clip"] == "data/motions/humanoid_demo_squat.pkl"
+        never = job_in(done, waiting["id"])
+        assert never["status"] == "stopped" and never["started_at"] is None and never["rows"] == []
+        assert not (Path(waiting["folder"]) / "report.json").exists()  # it never ran
+
+        # A long one: stopped while it runs, its process group killed.
+        long = studio.post("/api/evals", {"checkpoint": SHIPPED, "episodes": 256}).json()
+        stream.until(
+            lambda n, d: n == "evals" and (job_in(d, long["id"]) or {}).get("status") == "running",
+            timeout=120,
+            what="the long job running",
+        )
+        folder = Path(long["folder"])
+        wait_for(lambda: processes_in(folder), 60, "the eval process in its folder")
+        assert studio.client.delete(f"/api/evals/{long['id']}").status_code == 409  # running: stop it first
+        assert studio.post(f"/api/evals/{long['id']}/stop", json={}).json()["status"] == "stopped"
+        wait_for(lambda: not processes_in(folder), 20, "the eval's processes gone")
+        stream.until(lambda n, d: n == "evals" and job_in(d, long["id"])["status"] == "stopped", what="the stop pushed")
+        again = studio.post(f"/api/evals/{long['id']}/stop", json={})
+        assert again.status_code == 409 and "already ended (stopped)" in again.json()["detail"]
+        assert studio.post(f"/api/evals/{long['id']}/rollout", {"row": 0}).status_code == 409
+
+        # Ended jobs are deleted: gone from the list, the stream and the disk.
+        for job in (long, waiting, quick):
+            assert studio.client.delete(f"/api/evals/{job['id']}").status_code == 204
+            assert not Path(job["folder"]).exists()
+        gone = stream.until(
+            lambda n, d: n == "evals" and all(job_in(d, j["id"]) is None for j in (long, waiting, quick)),
+            what="the deleted jobs gone from the stream",
+        )
+        assert all(job_in(gone, j["id"]) is None for j in (long, waiting, quick))
+        assert studio.get(f"/api/evals/{quick['id']}").status_code == 404
+        assert studio.client.delete(f"/api/evals/{quick['id']}").status_code == 404
+        nxt = studio.post("/api/evals", {"checkpoint": SHIPPED, "episodes": 1}).json()
+        assert nxt["id"] > long["id"]  # a deleted job's id is not given again
+        studio.post(f"/api/evals/{nxt['id']}/stop", json={})
+    finally:
+        stream.close()
 
 
 def test_eval_requests_that_do_not_fit_are_refused(studio: StudioProcess) -> None:

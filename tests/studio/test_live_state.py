@@ -68,7 +68,7 @@ def test_a_change_wakes_the_listeners_and_a_failed_read_keeps_the_last_value() -
 
     async def main() -> None:
         async with live.subscribe():
-            seen = (live.scene.version, live.runs.version)
+            seen = live.versions
             scene.value = {"frame": 5}
             await asyncio.wait_for(live.wait(seen, timeout=60), 10)
             assert live.scene.value == {"frame": 5} and live.scene.version == seen[0] + 1
