@@ -125,7 +125,7 @@ def test_runs_event_after_a_launch_and_on_each_change(server: StudioProcess, eve
 def test_a_runs_metrics_rows_and_log_lines(server: StudioProcess, events) -> None:
     run = server.post("/api/runs", {"arg_file": "args/short.txt", "name": "followed"}).json()
     live = events(f"?run={run['id']}")
-    assert live.next()[1]["topics"] == ["log", "metrics", "rollout", "runs", "scene"]
+    assert live.next()[1]["topics"] == ["evals", "log", "metrics", "rollout", "runs", "scene"]
     rows: list[dict] = []
     batches = 0
     while len(rows) < 8:
