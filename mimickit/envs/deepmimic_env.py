@@ -25,7 +25,7 @@ from mimickit.engines.engine import ObjType
 from mimickit.envs.base_env import DoneFlags, EnvMode
 from mimickit.envs.char_env import CharEnv
 from mimickit.envs.char_obs import compute_phase_obs, compute_tar_pose_obs, join_tar_obs
-from mimickit.envs.deepmimic_rewards import TERM_NAMES, compute_reward_terms, tracking_errors
+from mimickit.envs.deepmimic_rewards import TERM_NAMES, body_pos_errors, compute_reward_terms, tracking_errors
 from mimickit.envs.env_config import DeepMimicEnvConfig
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
@@ -95,6 +95,7 @@ class DeepMimicEnv(CharEnv):
         self._tar_pose_obs: torch.Tensor | None = None  # valid from `_advance_clock` until the frames change
         self._step_state: dict[str, torch.Tensor] | None = None  # the character's state, within one step
         self._reset_batch: ResetBatch | None = None  # the reset in progress
+        self._in_call = False  # a step or reset runs (the only time `_step_state` is kept)
         self._init_frames()
         self._build_reset_pool()
         self._ref_char_offset = torch.tensor(config.ref_char_offset, dtype=torch.float32, device=dev)
@@ -144,18 +145,23 @@ class DeepMimicEnv(CharEnv):
         self._episode_ends = torch.zeros(len(DoneFlags), dtype=torch.long, device=self.device)
 
     # The state read once per step (`_step_state`) and a reset's `ResetBatch` hold only while that call
-    # runs: between calls the engine may be set from outside (a viewer, a test), so reads go to it.
+    # runs: between calls the engine may be set from outside (a viewer, a test), so reads go to it
+    # (`_in_call`: a read between calls, e.g. get_char_state(), must not fill the cache either).
     def reset(self, env_ids: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, Any]]:
+        self._in_call = True
         try:
             return super().reset(env_ids)
         finally:
             self._reset_batch = self._step_state = None
+            self._in_call = False
 
     def step(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, dict[str, Any]]:
+        self._in_call = True
         try:
             out = super().step(action)
         finally:
             self._step_state = None
+            self._in_call = False
         if self._mode == EnvMode.TEST:  # why each test episode ended, beside its tracking errors
             self._episode_ends += torch.bincount(out[2].long(), minlength=len(DoneFlags))
         return out
@@ -339,6 +345,8 @@ class DeepMimicEnv(CharEnv):
         """All envs: read from the engine once per step (or reset). The envs of the reset in progress:
         the state it set (`ResetBatch`). Other subsets: read from the engine."""
         if env_ids is None:
+            if not self._in_call:
+                return self._read_char_state(None)
             if self._step_state is None:
                 self._step_state = self._read_char_state(None)
             return dict(self._step_state)
@@ -409,6 +417,12 @@ class DeepMimicEnv(CharEnv):
             "reward_terms": self._reward_terms(sim, ref),
             "tracking": tracking_errors(sim, ref, self._dof_joint_ids),
         }
+
+    def body_pos_errors(self) -> torch.Tensor:
+        """Each env's per-body position errors [N, J] (metres) of its current state against its reference,
+        read now (`deepmimic_rewards.body_pos_errors`: the root's global error, the other bodies'
+        root-relative ones; the mean over J is the paper's position error)."""
+        return body_pos_errors(self.get_char_state(), self._ref)
 
     def _reward_terms(self, sim: dict[str, torch.Tensor], ref: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         return compute_reward_terms(

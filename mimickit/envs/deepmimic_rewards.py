@@ -111,6 +111,17 @@ def tracking_errors(
     }
 
 
+def body_pos_errors(sim: dict[str, torch.Tensor], ref: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Per-body position errors [N, J] in metres, the paper's position error body by body: column 0 the
+    root's global |Δx_root|, column j the root-relative |Δ(x_j − x_root)| (global axes, not the heading
+    frame); their mean over J is `paper_pos_err_m`. States with root_pos [N, 3] and body_pos [N, J, 3]."""
+    root_err = torch.linalg.norm(sim["root_pos"] - ref["root_pos"], dim=-1)
+    body_rel = sim["body_pos"] - sim["root_pos"].unsqueeze(-2)
+    ref_body_rel = ref["body_pos"] - ref["root_pos"].unsqueeze(-2)
+    rel_err = torch.linalg.norm(body_rel - ref_body_rel, dim=-1)
+    return torch.cat([root_err.unsqueeze(-1), rel_err[..., 1:]], dim=-1)
+
+
 def paper_errors(
     sim: dict[str, torch.Tensor],
     ref: dict[str, torch.Tensor],
