@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import shlex
 import socket
@@ -24,6 +25,8 @@ from mimickit.util.warn import collect_warnings
 from studio.executors.base import EXECUTORS
 from studio.security import new_token
 from studio.settings import DEFAULT_TRAINER, DEMO_CLIP, Settings, parse_trainer
+
+SERVER_WORK_DIR = "studio"  # under --runs-dir: the server's working directory
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -207,6 +210,7 @@ def serve(args: argparse.Namespace) -> int:
         raise MimicKitError("--token may hold only letters, digits and . _ ~ - (e.g. one from `openssl rand -hex 16`)")
     if settings.needs_token and not settings.token:
         settings.token = new_token()
+    enter_work_dir(settings)
     # Bind first, so that --port 0 gets a real port to print and no other process can take it.
     family = socket.AF_INET6 if ":" in settings.host else socket.AF_INET
     # proto=IPPROTO_TCP matters: asyncio sets TCP_NODELAY only on sockets that say so, and without it
@@ -228,6 +232,19 @@ def serve(args: argparse.Namespace) -> int:
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", timeout_graceful_shutdown=2))
     server.run(sockets=[sock])
     return 0
+
+
+def enter_work_dir(settings: Settings) -> Path:
+    """Make `<runs-dir>/studio/` the server's working directory, after every path is made absolute.
+
+    Rollouts, clip kinematics and the like run MuJoCo inside the server process, and MuJoCo writes its
+    warnings to `MUJOCO_LOG.TXT` in the working directory: that must not be the folder the user
+    started the server from (e.g. a checkout). Trainers and jobs get their own folders anyway."""
+    settings.resolved()
+    work_dir = settings.runs_dir / SERVER_WORK_DIR
+    work_dir.mkdir(parents=True, exist_ok=True)
+    os.chdir(work_dir)
+    return work_dir
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,7 +36,9 @@ ENGINE_YAML = PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml"
 class StudioProcess:
     """One `mimickit-studio serve` subprocess; `url` is the one line it prints."""
 
-    def __init__(self, runs_dir: Path, data_dir: Path | None = None, *extra: str, trainer: str = TRAINER) -> None:
+    def __init__(
+        self, runs_dir: Path, data_dir: Path | None = None, *extra: str, trainer: str = TRAINER, cwd: Path | None = None
+    ) -> None:
         self.runs_dir = runs_dir
         argv = [sys.executable, "-m", "studio.cli", "serve", "--port", "0", "--viser-port", "0"]
         argv += ["--runs-dir", str(runs_dir), "--trainer", trainer, *extra]
@@ -44,7 +46,7 @@ class StudioProcess:
             argv += ["--data-dir", str(data_dir)]
         self.stderr_path = runs_dir / "server.stderr.log"
         with open(self.stderr_path, "a") as err:  # a file, not a pipe nobody reads that could fill up
-            self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err, text=True)
+            self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err, text=True, cwd=cwd)
         self.url = self._read_url()
         # The header the dashboard sends: state-changing requests without it (or a JSON body) are refused.
         self.client = httpx.Client(base_url=self.url, timeout=30.0, headers={"X-Studio-Request": "1"})
