@@ -1,0 +1,113 @@
+"""The evals panel in real Chromium (Playwright, the apt browser): an eval of the project's demo model
+started from the page's form runs as a real `mimickit eval` job; the stream pushes its status into the
+same element (updated in place, not rebuilt) until its table appears; a click on a row rolls that clip
+out in the scene (the rollout panel shows); a long eval is stopped from the page; ended jobs are
+deleted from the page."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Iterator
+
+import pytest
+
+from tests.studio.conftest import StudioProcess, wait_for
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
+]
+SHIPPED = "data/models/deepmimic_humanoid_demo_model.pt"
+CLIP = "data/motions/humanoid_demo_squat.pkl"
+# The scene's software WebGL shares the page's main thread: on a loaded machine an action can wait long.
+ACTION_TIMEOUT_MS = 90_000
+EVAL_TIMEOUT_S = 300.0  # a real eval on a shared 2-core CPU
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
+    s = StudioProcess(tmp_path_factory.mktemp("evals_browser_runs"), None)  # the project's own data only
+    yield s
+    s.stop()
+
+
+@pytest.fixture(scope="module")
+def page(server: StudioProcess):
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
+        page = browser.new_page(viewport={"width": 1500, "height": 900})
+        page.set_default_timeout(ACTION_TIMEOUT_MS)
+        page.errors = []
+        page.on("pageerror", lambda e: page.errors.append(str(e)))
+        page.goto(server.url)
+        wait_for(lambda: page.locator("#frame-label").inner_text() != "–", 60, "the scene state on the page")
+        yield page
+        browser.close()
+
+
+def test_an_eval_from_the_page_shows_its_table_and_a_row_rolls_out(page, server: StudioProcess) -> None:
+    option = page.locator(f"#eval-checkpoint option[value='{SHIPPED}']")
+    wait_for(lambda: option.count() == 1, 60, "the shipped model in the eval form")
+    page.select_option("#eval-checkpoint", SHIPPED)
+    wait_for(lambda: page.locator(f"#eval-motion option[value='{CLIP}']").count() == 1, 60, "the demo clip listed")
+    page.select_option("#eval-motion", CLIP)
+    page.fill("#eval-episodes", "1")
+    page.click("#eval-button")
+
+    job = page.locator("#eval-list .item").first
+    job.wait_for()
+    job.evaluate("e => { e.dataset.sameElement = 'yes'; }")  # gone if the list were rebuilt
+    job_id = int(job.get_attribute("data-eval-id"))
+    assert server.get(f"/api/evals/{job_id}").json()["motion_file"].endswith(CLIP)
+    status = job.locator("[data-field=status]")
+    wait_for(lambda: status.inner_text() in ("finished", "failed"), EVAL_TIMEOUT_S, "the eval to end on the page")
+    assert status.inner_text() == "finished", job.locator("[data-field=error]").inner_text()
+    assert job.get_attribute("data-same-element") == "yes"  # the stream's updates landed in place
+
+    rows = job.locator("table.evals tbody tr")
+    wait_for(lambda: rows.count() == 1, 30, "the eval table's row")
+    headers = job.locator("table.evals thead th").all_inner_texts()
+    assert headers == ["clip", "ep.", "length", "full", "pos err", "vel err"]
+    cells = rows.first.locator("td").all_inner_texts()
+    row = server.get(f"/api/evals/{job_id}").json()["rows"][0]
+    assert cells[0] == "humanoid_demo_squat.pkl" and cells[1] == str(row["episodes"])
+    assert cells[2] == f"{row['mean_ep_len']:.1f}" and cells[4] == f"{row['paper_pos_err_m']:.3f}"
+
+    rows.first.click()
+    state = wait_for(
+        lambda: (s := server.get("/api/scene/state").json())["mode"] == "rollout" and s,
+        ACTION_TIMEOUT_MS / 1000,
+        "the row's rollout in the scene",
+    )
+    env_config = state["rollout"]["env_config"]
+    assert env_config.endswith("row0_env_config.yaml") and state["rollout"]["checkpoint"].endswith(SHIPPED)
+    with open(env_config) as f:
+        assert CLIP in f.read()  # that row's clip (its absolute path), in place of the env config's own
+    page.locator("#rollout-panel").wait_for(state="visible")
+    assert page.locator("#eval-error").inner_text() == ""
+
+    server.post("/api/scene/rollout/close")
+
+    # A long eval, stopped from the page while it runs.
+    page.fill("#eval-episodes", "256")
+    page.click("#eval-button")
+    long = page.locator(f"#eval-list .item:not([data-eval-id='{job_id}'])").first
+    long.wait_for()
+    long_status = long.locator("[data-field=status]")
+    wait_for(lambda: long_status.inner_text() == "running", EVAL_TIMEOUT_S, "the long eval running")
+    assert long.locator("button[data-action=delete]").is_hidden()
+    long.locator("button[data-action=stop]").click()
+    wait_for(lambda: long_status.inner_text() == "stopped", 30, "the long eval stopped")
+    assert server.get(f"/api/evals/{long.get_attribute('data-eval-id')}").json()["status"] == "stopped"
+
+    page.on("dialog", lambda d: d.accept())  # "Delete eval #N and its folder …?"
+    for gone_id in (long.get_attribute("data-eval-id"), str(job_id)):
+        item = page.locator(f"#eval-list [data-eval-id='{gone_id}']")
+        item.locator("button[data-action=delete]").click()
+        wait_for(lambda item=item: item.count() == 0, 30, "the job gone")
+        assert server.get(f"/api/evals/{gone_id}").status_code == 404
+    assert page.locator("#eval-empty").is_visible()
+    assert page.errors == []
