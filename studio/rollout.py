@@ -37,7 +37,7 @@ from mimickit.util.paths import DataPaths
 from mimickit.util.warn import collect_warnings
 from studio.checkpoints import configs_beside
 from studio.playable import Playable
-from studio.scene import SUPPORT_WINDOW_S, StudioScene
+from studio.scene import BODY_ERROR_SCALE_M, BODY_ERROR_STOPS, SUPPORT_WINDOW_S, StudioScene
 
 HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
 RELOAD_POLL_S = 1.0  # how often the checkpoint's mtime is checked
@@ -122,6 +122,7 @@ class Frame:
     episode_return: float
     done: int = 0  # DoneFlags of the step that ended an episode (1 fail, 2 success, 3 time)
     low_z: float | None = None  # lowest body origin of the followed figure (see RolloutPlayer._height)
+    body_error: np.ndarray | None = None  # [J] metres, each body's tracking error (Rollout.body_names)
 
 
 @dataclass
@@ -166,6 +167,10 @@ class Rollout:
         # Height follow tracks the reference (it may climb; the policy may fall), else the character.
         char_bodies = np.asarray(view.objects[self.env.get_char_id()].body_ids)
         self.follow_bodies = self.ghost_bodies if len(self.ghost_bodies) else char_bodies
+        self.char_bodies = char_bodies  # the character's body j -> its MuJoCo body id
+        # Per-body tracking error against the reference the ghost shows (DeepMimic-style envs).
+        tracks = ghost_id is not None and hasattr(self.env, "body_pos_errors")
+        self.body_names: list[str] = self.env.char_model.get_body_names() if tracks else []
         self.reward_weights: dict[str, float] = dict(getattr(self.env, "reward_weights", {}) or {})
         self.history: deque[Frame] = deque(maxlen=max(2, round(history_s / self.dt)))
         st = source.checkpoint.stat()
@@ -246,8 +251,30 @@ class Rollout:
     def _record(self, reward: float | None, terms: dict[str, float] | None, done: int) -> Frame:
         qpos = self.env.engine.mujoco_view(0).data.qpos.copy()  # the character and the ghost of this step
         frame = Frame(self.steps, self.episode, self.episode_step, qpos, reward, terms, self.episode_return, done)
+        if self.body_names:
+            frame.body_error = self.env.body_pos_errors()[0].cpu().numpy().astype(np.float64)
         self.history.append(frame)
         return frame
+
+    def body_error_colours(self, frame: Frame) -> dict[int, float]:
+        """{MuJoCo body id of the character: its error in metres} of `frame` (empty without a reference),
+        what `StudioScene.colour_bodies` takes."""
+        if frame.body_error is None:
+            return {}
+        return {int(b): float(e) for b, e in zip(self.char_bodies, frame.body_error, strict=True)}
+
+    def body_error_json(self, frame: Frame) -> dict[str, Any] | None:
+        """The per-body tracking error of `frame` for the scene state (None without a reference)."""
+        if frame.body_error is None:
+            return None
+        return {
+            "bodies": self.body_names,
+            "errors_m": [round(float(e), 5) for e in frame.body_error],
+            "mean_m": round(float(frame.body_error.mean()), 5),  # = the paper's position error
+            "scale_m": BODY_ERROR_SCALE_M,
+            "stops": [list(c) for c in BODY_ERROR_STOPS],
+            "measure": "position error per body vs the reference: root-relative, the root's own global",
+        }
 
 
 @dataclass
@@ -271,7 +298,8 @@ class RolloutPlayer(Playable):
         self.state = RolloutState(playing=play)
         self._ground = np.inf  # the lowest `Frame.low_z` drawn so far (see _height)
         if scene is not None:
-            scene.show_rollout(rollout.model, rollout.ghost_bodies)
+            error_bodies = rollout.char_bodies if rollout.body_names else None  # coloured by their error
+            scene.show_rollout(rollout.model, rollout.ghost_bodies, error_bodies)
         with self._lock:
             self._draw()
         self._start()
@@ -382,6 +410,7 @@ class RolloutPlayer(Playable):
                     "episode_return": shown.episode_return,
                     "reward": shown.reward,  # None for an episode's first frame
                     "reward_terms": shown.terms or {},
+                    "body_error": r.body_error_json(shown),  # the frame shown's, None without a reference
                     "latest": {  # the live end, the newest simulated step
                         "step": latest.step,
                         "episode": latest.episode,
@@ -416,7 +445,14 @@ class RolloutPlayer(Playable):
             frames = [f for f in self.rollout.history if f.step > since_step and f.terms is not None]
         dt = self.rollout.dt
         return [
-            {"step": f.step, "time": f.step * dt, "episode": f.episode, "reward": f.reward, "terms": f.terms}
+            {
+                "step": f.step,
+                "time": f.step * dt,
+                "episode": f.episode,
+                "reward": f.reward,
+                "terms": f.terms,
+                "body_error": None if f.body_error is None else [round(float(e), 5) for e in f.body_error],
+            }
             for f in frames[-limit:]
         ]
 
@@ -446,6 +482,7 @@ class RolloutPlayer(Playable):
         centre = root if r.ghost_root is None else 0.5 * (root + xpos[r.ghost_root])
         if self.scene is not None:
             self.scene.draw_bodies(xpos, xmat, centre, self.state.follow, self.state.height)
+            self.scene.colour_bodies(r.body_error_colours(frame), BODY_ERROR_SCALE_M)
         self.state.root_pos = root.astype(float).tolist()
         self.state.updates += 1
         self._changed()

@@ -1,8 +1,9 @@
 """The 3D scene in viser: a character drawn from its MJCF (mjviser), a dark ground grid, the root
 path of the clip, foot-contact markers, and a camera that follows the character. For a live rollout
 the scene shows the MuJoCo model of the engine's `mujoco_view` instead (either engine): the simulated
-character in its side colours and the reference character (the env's visual-only "ghost") as a
-translucent green figure.
+character, each body coloured by its current tracking error when the env has a reference (in its side
+colours otherwise), and the reference character (the env's visual-only "ghost") as a translucent green
+figure.
 
 Camera follow moves the world, not the camera: the character's root is kept over the origin (in x, y)
 and the ground, path and markers shift under it, so each browser keeps its own orbit/zoom. Height is
@@ -47,6 +48,11 @@ PATH_COLOR = (250, 176, 5)
 CONTACT_COLOR = (60, 220, 120)
 MAX_PATH_POINTS = 400
 SUPPORT_WINDOW_S = 0.5  # the standing level is the lowest foot within this many seconds either side
+# A rollout's per-body tracking error (metres) colours the character: pale steel at 0, amber at half
+# the scale, red at the scale and above (no green: the ghost beside it is green). The page's bar chart
+# takes the same stops from the scene state.
+BODY_ERROR_SCALE_M = 0.3
+BODY_ERROR_STOPS = ((195, 210, 230), (245, 185, 55), (225, 50, 45))
 
 
 def support_height(low_z: np.ndarray, fps: float, window_s: float = SUPPORT_WINDOW_S) -> np.ndarray:
@@ -60,6 +66,16 @@ def support_height(low_z: np.ndarray, fps: float, window_s: float = SUPPORT_WIND
     lows = np.lib.stride_tricks.sliding_window_view(padded, 2 * w + 1).min(axis=1)
     lows = np.pad(lows, w, mode="edge")
     return np.lib.stride_tricks.sliding_window_view(lows, 2 * w + 1).mean(axis=1)[:n]
+
+
+def error_colour(error_m: float, scale_m: float = BODY_ERROR_SCALE_M) -> tuple[int, int, int]:
+    """The colour (RGB 0-255) of a body `error_m` metres off its reference: piecewise linear through
+    BODY_ERROR_STOPS over [0, scale_m], clamped beyond."""
+    t = min(max(float(error_m) / scale_m, 0.0), 1.0) * (len(BODY_ERROR_STOPS) - 1)
+    i = min(int(t), len(BODY_ERROR_STOPS) - 2)
+    a, b, f = BODY_ERROR_STOPS[i], BODY_ERROR_STOPS[i + 1], t - i
+    # Halves round up, as the page's Math.round does (Python's round() would round them to even).
+    return tuple(int(a[k] + (b[k] - a[k]) * f + 0.5) for k in range(3))  # type: ignore[return-value]
 
 
 def body_color(name: str) -> tuple[float, float, float]:
@@ -108,6 +124,8 @@ class StudioScene:
         self._support: tuple[ClipPose | None, np.ndarray] = (None, np.zeros(0))
         self.mode = "clip"  # "clip": the player draws; "rollout": a rollout draws (clip draws are ignored)
         self._ghost: list[tuple[int, viser.MeshHandle]] = []  # (MuJoCo body id, its translucent mesh)
+        self._error_meshes: list[tuple[int, viser.MeshHandle]] = []  # the character's bodies, by error
+        self._error_colours: list[tuple[int, int, int] | None] = []  # the colour each was last sent
         server.scene.set_up_direction("+z")
         server.scene.world_axes.visible = False
         self.world = server.scene.add_frame("/world", show_axes=False)
@@ -208,35 +226,76 @@ class StudioScene:
 
     # -- rollout: an env's own model, character and ghost ------------------------------------------
 
-    def show_rollout(self, model: mujoco.MjModel, ghost_bodies: np.ndarray) -> None:
-        """Replace whatever is drawn by the env model `model`; bodies `ghost_bodies` are the reference."""
+    def show_rollout(
+        self, model: mujoco.MjModel, ghost_bodies: np.ndarray, error_bodies: np.ndarray | None = None
+    ) -> None:
+        """Replace whatever is drawn by the env model `model`; bodies `ghost_bodies` are the reference.
+        `error_bodies`, the character's bodies, are drawn one mesh each for `colour_bodies` to colour by
+        their tracking error (mjviser's batched meshes have one colour baked in per shared geometry)."""
+        error_bodies = np.zeros(0, dtype=np.int64) if error_bodies is None else np.asarray(error_bodies)
         with self._lock:
             self._clear_clip()
             self._clear_rollout()
             self.mode = "rollout"
-            view = rollout_view_model(model, ghost_bodies)
+            view = rollout_view_model(model, np.concatenate([ghost_bodies, error_bodies]))
             self._mj = ViserMujocoScene(self.server, view, num_envs=1)
             self._mj.camera_tracking_enabled = False  # we follow by moving the world (see module doc)
-            ghost_view = copy.deepcopy(model)
-            ghost_view.geom_rgba[:, :3] = np.array(GHOST_COLOR) / 255.0
-            ghost_view.geom_rgba[:, 3] = 1.0
-            for b in ghost_bodies:
-                geoms = [g for g in np.flatnonzero(model.geom_bodyid == b) if model.geom_rgba[g, 3] > 0]
-                if not geoms:
-                    continue
-                mesh = merge_geoms(ghost_view, geoms)
-                handle = self.server.scene.add_mesh_simple(
-                    f"/ghost/b{int(b)}",
-                    np.asarray(mesh.vertices, dtype=np.float32),
-                    np.asarray(mesh.faces, dtype=np.uint32),
-                    color=GHOST_COLOR,
-                    opacity=GHOST_OPACITY,
-                    cast_shadow=False,
-                    receive_shadow=False,
-                )
-                self._ghost.append((int(b), handle))
+            self._ghost = self._body_meshes(model, ghost_bodies, "/ghost", GHOST_COLOR, GHOST_OPACITY)
+            self._error_meshes = self._body_meshes(model, error_bodies, "/error_bodies", None, 1.0, shadows=True)
+            self._error_colours = [None] * len(self._error_meshes)
             if self._ghost:
                 self._set_camera(ROLLOUT_CAMERA, clients=True)
+
+    def _body_meshes(
+        self,
+        model: mujoco.MjModel,
+        bodies: np.ndarray,
+        prefix: str,
+        color: tuple[int, int, int] | None,
+        opacity: float,
+        shadows: bool = False,
+    ) -> list[tuple[int, viser.MeshHandle]]:
+        """One mesh per body of `bodies` with visible geoms, in its body frame; `color` None: the body's
+        side colour (until `colour_bodies` sets another)."""
+        out = []
+        for b in bodies:
+            geoms = [g for g in np.flatnonzero(model.geom_bodyid == b) if model.geom_rgba[g, 3] > 0]
+            if not geoms:
+                continue
+            name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(b)) or ""
+            rgb = color or tuple(round(c * 255) for c in body_color(name.rsplit("/", 1)[-1]))
+            mesh = merge_geoms(model, geoms)
+            handle = self.server.scene.add_mesh_simple(
+                f"{prefix}/b{int(b)}",
+                np.asarray(mesh.vertices, dtype=np.float32),
+                np.asarray(mesh.faces, dtype=np.uint32),
+                color=rgb,
+                opacity=opacity,
+                cast_shadow=shadows,
+                receive_shadow=False,
+            )
+            out.append((int(b), handle))
+        return out
+
+    def colour_bodies(self, errors: dict[int, float], scale_m: float = BODY_ERROR_SCALE_M) -> None:
+        """Colour the character's bodies (those `show_rollout` got as `error_bodies`) by their error:
+        {MuJoCo body id: metres}; a colour is sent only when it changes."""
+        with self._lock:
+            if self.mode != "rollout":
+                return
+            with self.server.atomic():
+                for i, (b, h) in enumerate(self._error_meshes):
+                    if b not in errors:
+                        continue
+                    rgb = error_colour(errors[b], scale_m)
+                    if rgb != self._error_colours[i]:
+                        h.color = rgb
+                        self._error_colours[i] = rgb
+
+    def body_colours(self) -> dict[int, tuple[int, int, int]]:
+        """The colour each of the character's error-coloured bodies shows: {MuJoCo body id: RGB 0-255}."""
+        with self._lock:
+            return {b: tuple(int(c) for c in h.color) for b, h in self._error_meshes}  # type: ignore[misc]
 
     def _set_camera(self, view: dict[str, tuple[float, float, float]], clients: bool) -> None:
         """The camera new browsers start with; `clients`: also move the cameras of connected ones."""
@@ -264,9 +323,9 @@ class StudioScene:
             mats = xmat.reshape(-1, 3, 3)
             with self.server.atomic():
                 self.world.position = -offset
-                if self._ghost:
+                if self._ghost or self._error_meshes:
                     wxyz = np.zeros((len(mats), 4))
-                    for b, h in self._ghost:
+                    for b, h in self._ghost + self._error_meshes:
                         mujoco.mju_mat2Quat(wxyz[b], mats[b].reshape(9))
                         h.position = pos[b]
                         h.wxyz = wxyz[b]
@@ -285,10 +344,11 @@ class StudioScene:
         self._char_path = None
 
     def _clear_rollout(self) -> None:
-        for _, h in self._ghost:
+        for _, h in self._ghost + self._error_meshes:
             h.remove()
-        self._ghost = []
+        self._ghost, self._error_meshes, self._error_colours = [], [], []
         self.server.scene.remove_by_name("/ghost")
+        self.server.scene.remove_by_name("/error_bodies")
         self.server.scene.remove_by_name("/bodies")
         self.server.scene.remove_by_name("/fixed_bodies")
         self._mj = None

@@ -3,6 +3,7 @@
 // `rollout` events (each recorded step not sent yet) and are drawn with the page's uPlot plots.
 import { $, api, el, withToken } from "./api.js";
 import { CurvePlot } from "./plots.js";
+import { BodyErrorChart } from "./body_error.js";
 
 let scrubbing = false;
 let pendingCommands = 0;
@@ -74,14 +75,15 @@ export async function loadRollout(body) {
 }
 
 export const rolloutView = {
-  plot: null, lastStep: -1,
+  plot: null, lastStep: -1, bodyError: null,
   init() {
+    this.bodyError = new BodyErrorChart($("body-error"));
     this.plot = new CurvePlot($("rollout-plot"), {
       title: "rollout: reward and its terms, last 10 s", xLabel: "time (s)", yLabel: "reward",
       height: 130, window: 10, yRange: [0, 1], colors: { reward: "#ffffff" },
     });
   },
-  reset() { this.lastStep = -1; this.plot.clear(); },
+  reset() { this.lastStep = -1; this.plot.clear(); this.bodyError.clear(); },
   apply(s) {
     const r = s.rollout;
     const who = r.run_id !== null ? `run #${r.run_id} ${r.run_name || ""}` : r.checkpoint.split("/").slice(-2).join("/");
@@ -90,6 +92,7 @@ export const rolloutView = {
     $("rollout-label").textContent = `${who} · checkpoint saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
       ` · episode ${r.episode} · return ${r.episode_return.toFixed(2)} · ${terms}${r.error ? ` · ${r.error}` : ""}`;
     $("clip-label").textContent = `rollout of ${r.checkpoint.split("/").slice(-2).join("/")} in ${r.env_config.split("/").pop()} (ghost: the reference clip)`;
+    this.bodyError.apply(r.body_error);  // the frame shown's (live or history)
     const cursor = r.live ? null : s.time;
     if (cursor !== this.plot.cursor) { this.plot.cursor = cursor; this.plot.draw(); }
   },

@@ -166,10 +166,11 @@ def test_rollout_in_the_browser(page, studio: StudioProcess, demo_checkpoint: Pa
     pixels = np.asarray(Image.open(io.BytesIO(page.locator("#scene").screenshot())).convert("RGB"), dtype=np.int32)
     r, g, b = pixels[..., 0], pixels[..., 1], pixels[..., 2]
     ghost = (g > r + 25) & (g > b + 10) & (g > 90)  # translucent green over the dark ground
-    coral = (r > g + 50) & (r > b + 50)  # the character's right side
-    blue = (b > r + 50) & (b > g + 10) & (b > 120)  # its left side
+    # The character, each body coloured by its tracking error: pale steel (none) to amber and red.
+    warm = (r > b + 60) & (r > 120)
+    pale = (r > 150) & (g > 150) & (b > 160)
     assert ghost.mean() > 0.001, "no ghost (reference character) in the picture"
-    assert coral.mean() > 0.0005 and blue.mean() > 0.0005, "no character in the picture"
+    assert (warm | pale).mean() > 0.001, "no character in the picture"
     shot = PROJECT_ROOT / "docs" / "studio_rollout.png"
     if os.environ.get("STUDIO_UPDATE_SCREENSHOTS") != "1":
         shot = tmp_path / "studio_rollout.png"
