@@ -1,5 +1,5 @@
 """What `GET /api/stream` pushes, read off the event loop: one watcher per server samples the scene
-(10 times a second), the run list and the eval jobs (once a second) in a worker thread while at least
+(10 times a second), the run list and the eval and video jobs (once a second) in a worker thread while at least
 one stream is open, and wakes the streams when one changed, compared by content. Nothing is sampled while no
 stream is open. Each stream's own part (a rollout's new history rows, one run's new metrics rows and
 log lines) is read by the followers below, also in a worker thread.
@@ -55,12 +55,15 @@ class LiveState:
         read_scene: Callable[[], dict[str, Any] | None],
         read_runs: Callable[[], list[dict]],
         read_evals: Callable[[], list[dict]] = list,
+        read_videos: Callable[[], list[dict]] = list,
     ) -> None:
         self.server_id = uuid.uuid4().hex  # a new one per server start: the page sees a restart
         self.scene = Versioned()
         self.runs = Versioned()
         self.evals = Versioned()
+        self.videos = Versioned()
         self._read_scene, self._read_runs, self._read_evals = read_scene, read_runs, read_evals
+        self._read_videos = read_videos
         self._listeners = 0
         self._task: asyncio.Task | None = None
         self._ready = asyncio.Event()
@@ -88,9 +91,9 @@ class LiveState:
                 self._task = None
 
     @property
-    def versions(self) -> tuple[int, int, int]:
-        """The scene's, the run list's and the eval jobs' versions."""
-        return self.scene.version, self.runs.version, self.evals.version
+    def versions(self) -> tuple[int, int, int, int]:
+        """The scene's, the run list's, the eval jobs' and the video jobs' versions."""
+        return self.scene.version, self.runs.version, self.evals.version, self.videos.version
 
     async def wait(self, seen: tuple[int, ...], timeout: float) -> None:
         """Until the scene, the run list or the eval jobs are newer than `seen` (`versions`), or `timeout` seconds."""
@@ -110,11 +113,12 @@ class LiveState:
             await self._sample(runs=tick % RUNS_EVERY == 0)
 
     async def _sample(self, *, runs: bool) -> None:
-        def read() -> tuple[bool, bool, bool]:
+        def read() -> tuple[bool, bool, bool, bool]:
             scene_changed = self.scene.update(_guarded(self._read_scene, "the scene state", self.scene.value))
             runs_changed = runs and self.runs.update(_guarded(self._read_runs, "the run list", self.runs.value))
             evals_changed = runs and self.evals.update(_guarded(self._read_evals, "the eval jobs", self.evals.value))
-            return scene_changed, runs_changed, evals_changed
+            videos = runs and self.videos.update(_guarded(self._read_videos, "the video jobs", self.videos.value))
+            return scene_changed, runs_changed, evals_changed, videos
 
         if any(await anyio.to_thread.run_sync(read)):
             # Wake every waiting stream at once; later waiters get a fresh event.

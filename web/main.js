@@ -10,6 +10,7 @@ import { initLibrary, loadLibrary, onLibraryLoaded } from "./library.js";
 import { applyState, initPlayer, rolloutView } from "./player.js";
 import { addLog, addMetrics, fillLaunchForm, initRuns, renderRuns } from "./runs.js";
 import { StudioStream } from "./stream.js";
+import { initVideo, renderVideos } from "./video.js";
 
 let sceneUrl = null;
 async function loadHealth() {
@@ -30,6 +31,15 @@ function showScene() {
   $("scene").src = sceneLoads === 1 ? url : `${url}${url.includes("?") ? "&" : "?"}reload=${sceneLoads}`;
 }
 
+// viser's control panel is minimised (studio/player_gui.py), but under viser's mobile breakpoint (36em
+// of the iframe's width) it becomes a bottom sheet that opens expanded over the middle of the 3D view,
+// and viser has no setting for that sheet: the page hides it (the scene's iframe is same-origin).
+const SCENE_NARROW_CSS = "@media (max-width: 36em) { .mantine-Paper-root[style*='position: fixed'][style*='bottom: 0'] { display: none !important; } }";
+$("scene").addEventListener("load", () => {
+  const doc = $("scene").contentDocument;
+  if (doc && doc.head) doc.head.append(Object.assign(doc.createElement("style"), { textContent: SCENE_NARROW_CSS }));
+});
+
 let serverId = null;
 const stream = new StudioStream({
   url: withToken,
@@ -37,6 +47,7 @@ const stream = new StudioStream({
     scene: (s) => applyState(s),
     rollout: (h) => rolloutView.addRows(h),
     runs: (runs) => renderRuns(runs),
+    videos: (jobs) => renderVideos(jobs),
     metrics: (m) => addMetrics(m),
     log: (l) => addLog(l),
   },
@@ -67,6 +78,7 @@ initCurves();
 initCompare();
 initCheckpoints();
 initRuns(stream);
+initVideo();
 initKeys();
 // A clicked button must not keep the focus: Enter would press it again instead of play/pause.
 document.addEventListener("mouseup", (ev) => { const b = ev.target.closest && ev.target.closest("button"); if (b) b.blur(); });

@@ -12,6 +12,8 @@ Events (each `data:` is JSON):
   `checkpoint_mtime`), sent at connect and when a run's content changed (checked once a second);
 - `evals`: the eval jobs (`GET /api/evals`), sent at connect and when a job's status or rows changed
   (checked once a second);
+- `videos`: the MP4 export jobs (`GET /api/videos`), sent at connect and when a job's status changed
+  (checked once a second);
 - `metrics` (with `?run=ID`): that run's new `metrics.jsonl` rows `{run, reset, start, rows}`
   (`start` = the first row's index; the first batch has `reset`);
 - `log` (with `?run=ID`): that run's new `console.log` lines `{run, reset, lines}`;
@@ -42,7 +44,7 @@ from studio.api.runs import run_json
 from studio.live_state import RUN_VOLATILE_KEYS, LiveState, LogFollower, MetricsFollower, RolloutFollower
 
 router = APIRouter(tags=["stream"], route_class=OneLineErrors)
-TOPICS = ("scene", "rollout", "runs", "evals", "metrics", "log")
+TOPICS = ("scene", "rollout", "runs", "evals", "videos", "metrics", "log")
 RUN_TOPICS = ("metrics", "log")
 QUERY_KEYS = ("topics", "run", "token")
 HEARTBEAT_S = 5.0
@@ -55,7 +57,12 @@ def live_of(request: Request) -> LiveState:
     state = request.app.state
     if getattr(state, "live", None) is None:
         studio = studio_of(request)
-        state.live = LiveState(lambda: _scene_state(studio), lambda: _run_list(studio), lambda: _eval_list(state))
+        state.live = LiveState(
+            lambda: _scene_state(studio),
+            lambda: _run_list(studio),
+            lambda: _eval_list(state),
+            lambda: _video_list(state),
+        )
     return state.live
 
 
@@ -75,6 +82,11 @@ def _run_list(studio: Any) -> list[dict[str, Any]]:
 
 def _eval_list(state: Any) -> list[dict[str, Any]]:
     jobs = getattr(state, "evals", None)  # made by the first `/api/evals` request: none before
+    return [j.to_json() for j in jobs.list()] if jobs is not None else []
+
+
+def _video_list(state: Any) -> list[dict[str, Any]]:
+    jobs = getattr(state, "videos", None)  # made by the first `/api/videos` request: none before
     return [j.to_json() for j in jobs.list()] if jobs is not None else []
 
 
@@ -116,7 +128,7 @@ class Subscription:
 
 @router.get("/stream", response_class=EventSourceResponse)
 async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> AsyncIterator[ServerSentEvent]:
-    """Scene state, rollout history, run list, eval jobs, and one run's metrics rows and log lines,
+    """Scene state, rollout history, run list, eval and video jobs, and one run's metrics rows and log lines,
     pushed when they change (see the module's text for the events)."""
     studio = studio_of(request)
     live = live_of(request)
@@ -126,7 +138,7 @@ async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> A
     metrics = MetricsFollower(folder.metrics_file) if folder and "metrics" in sub.topics else None
     log = LogFollower(folder.console_file) if folder and "log" in sub.topics else None
     rollout = RolloutFollower() if "rollout" in sub.topics else None
-    seen_scene = seen_runs = seen_evals = -1
+    seen_scene = seen_runs = seen_evals = seen_videos = -1
     last_sent = time.monotonic()
     async with live.subscribe():
         while True:
@@ -152,6 +164,11 @@ async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> A
                 if "evals" in sub.topics:
                     yield ServerSentEvent(event="evals", data=live.evals.value)
                     sent = True
+            if live.videos.version != seen_videos:
+                seen_videos = live.videos.version
+                if "videos" in sub.topics:
+                    yield ServerSentEvent(event="videos", data=live.videos.value)
+                    sent = True
             if metrics is not None:
                 for batch in await anyio.to_thread.run_sync(metrics.read):
                     yield ServerSentEvent(event="metrics", data={"run": sub.run, **batch})
@@ -170,4 +187,4 @@ async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> A
             timeout = HEARTBEAT_S - (time.monotonic() - last_sent)
             if metrics is not None or log is not None:
                 timeout = min(timeout, FOLLOW_PERIOD_S)
-            await live.wait((seen_scene, seen_runs, seen_evals), max(0.01, timeout))
+            await live.wait((seen_scene, seen_runs, seen_evals, seen_videos), max(0.01, timeout))

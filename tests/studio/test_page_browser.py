@@ -193,6 +193,12 @@ def test_narrow_screen_stacks_with_a_visible_3d_view(browser, server: StudioProc
     page = open_page(browser, server, 390, 844)
     box = page.locator("#scene").bounding_box()
     assert box["width"] >= 380 and box["height"] >= 200, box
+    # viser's own panel turns into a bottom sheet at this width; the page hides it: the centre is the canvas.
+    centre = [box["width"] / 2, box["height"] / 2]
+    hit = lambda: scene_frame(page).evaluate("([x, y]) => document.elementFromPoint(x, y).tagName", centre)  # noqa: E731
+    wait_for(lambda: hit() == "CANVAS", 60, "the canvas at the centre of the 3D view (not viser's bottom sheet)")
+    time.sleep(2.0)  # viser lays out its panel after the canvas appears: still the canvas after that
+    assert hit() == "CANVAS", f"the centre of the 3D view is a {hit()}, not the canvas"
     runs = page.locator("#runs").bounding_box()
     assert runs["y"] >= box["y"] + box["height"], "the runs panel is not below the 3D view"
     for row in page.locator("#player .bar").all():

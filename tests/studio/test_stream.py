@@ -86,7 +86,7 @@ def test_scene_events_follow_scene_commands(server: StudioProcess, events) -> No
     stream = events()
     assert stream.response.headers["content-type"].startswith("text/event-stream")
     name, hello = stream.next()
-    assert name == "hello" and len(hello["server"]) == 32 and hello["topics"] == ["evals", "rollout", "runs", "scene"]
+    assert name == "hello" and len(hello["server"]) == 32 and hello["topics"] == ["evals", "rollout", "runs", "scene", "videos"]
     first = stream.until(lambda n, d: n == "scene", what="the scene at connect")
     assert first["mode"] == "clip" and first["clip"].endswith("humanoid_demo_squat.pkl")
 
@@ -125,7 +125,7 @@ def test_runs_event_after_a_launch_and_on_each_change(server: StudioProcess, eve
 def test_a_runs_metrics_rows_and_log_lines(server: StudioProcess, events) -> None:
     run = server.post("/api/runs", {"arg_file": "args/short.txt", "name": "followed"}).json()
     live = events(f"?run={run['id']}")
-    assert live.next()[1]["topics"] == ["evals", "log", "metrics", "rollout", "runs", "scene"]
+    assert live.next()[1]["topics"] == ["evals", "log", "metrics", "rollout", "runs", "scene", "videos"]
     rows: list[dict] = []
     batches = 0
     while len(rows) < 8:

@@ -1,0 +1,55 @@
+"""Export MP4 from the page, in real Chromium: with the demo clip playing, the player bar's "Export
+MP4" starts a real `mimickit video` job on the server, the stream's `videos` events show its progress,
+and a download link appears that serves the MP4."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from tests.studio.conftest import StudioProcess, write_arg_file
+from tests.studio.test_page_browser import CHROMIUM, open_page
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
+]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
+    runs_dir = tmp_path_factory.mktemp("video_browser_runs")
+    write_arg_file(runs_dir, "short")
+    s = StudioProcess(runs_dir, None)  # the project's own data: the demo clip plays at start-up
+    yield s
+    s.stop()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
+        yield b
+        b.close()
+
+
+def test_export_mp4_of_the_clip_gives_a_download_link(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    page.locator("#export-video").click()
+    page.locator("#video-status").wait_for(state="visible")
+    link = page.locator("#video-link")
+    link.wait_for(timeout=240_000)  # a real render on a shared machine
+    assert link.inner_text() == "humanoid_demo_squat.mp4"
+    assert "ready" in page.locator("#video-status").inner_text()
+    href = link.get_attribute("href")
+    (job,) = server.get("/api/videos").json()
+    assert job["status"] == "finished" and job["kind"] == "clip" and job["clip"].endswith("humanoid_demo_squat.pkl")
+    assert href == job["download"]
+    video = server.get(href)
+    assert video.headers["content-type"] == "video/mp4" and video.content[4:8] == b"ftyp"
+    assert len(video.content) == job["bytes"]
+    assert not page.locator("#export-video").is_disabled()
+    assert page.errors == []
+    page.close()
