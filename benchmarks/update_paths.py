@@ -5,12 +5,18 @@ epochs, then actor epochs, on the same minibatch indices, from the same weights)
 - `old`: every buffer array gathered per minibatch, observations and actions normalised per minibatch,
   exploring-row masks applied even when every row explored, for-loop SGD (the code before these changes);
 - `lazy`: `old` but minibatches gather only the arrays a loss reads;
-- `new`: the agent's own update (lazy gathers, inputs normalised once, no all-true masks, foreach SGD);
-- `bf16`: `new` under bfloat16 autocast (tried, not kept: it changes the weights, see the note printed).
+- `zerograd`: lazy gathers, inputs normalised once, no all-true masks, foreach SGD, gradients zeroed
+  before each backward (the update of 2026-12-02), on all torch threads;
+- `new`: `zerograd` with gradients set to None before each backward (backward writes them);
+- `threads`: `new` as training runs it, under `update_threads()` (torch's ops on one thread, MKL's
+  matrix products on all);
+- `1thread`: `new` on one torch thread for everything (tried, not kept: MKL partitions some products by
+  the thread count, so the weights change);
+- `bf16`: `new` under bfloat16 autocast (tried, not kept: it changes the weights).
 Prints each variant's seconds per update (median over rounds) and its speed-up over `old`, and whether the
 weights each variant ends with equal `old`'s bit for bit.
 
-    python benchmarks/update_paths.py [--num_envs 256] [--rounds 5]
+    python benchmarks/update_paths.py [--num_envs 256] [--rounds 5] [--variants old zerograd new threads]
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import argparse
 import copy
 import statistics
 import time
+import types
 from collections.abc import Callable
 from typing import Any
 
@@ -27,7 +34,10 @@ import torch
 from mimickit.envs.env_builder import build_env
 from mimickit.learning import rl_util
 from mimickit.learning.agent_builder import build_agent
+from mimickit.learning.mp_optimizer import MPOptimizer
 from mimickit.learning.ppo_agent import PPOAgent
+from mimickit.learning.update_threads import update_threads
+from mimickit.util.threads import torch_threads
 
 AGENT = "data/agents/deepmimic_humanoid_ppo_cpu_agent.yaml"
 ENV = "data/envs/deepmimic_humanoid_env.yaml"
@@ -97,10 +107,40 @@ def run_bf16(agent: PPOAgent) -> None:
         agent._update_model()
 
 
+def zeroed_grad_step(opt: MPOptimizer, loss: torch.Tensor) -> None:
+    """MPOptimizer.step of one process as it was: gradients zeroed in place, backward adds to them."""
+    opt._optimizer.zero_grad(set_to_none=False)
+    loss.backward()
+    opt._optimizer.step()
+    opt._steps += 1
+
+
+def run_zerograd(agent: PPOAgent) -> None:
+    opts = (agent._critic_optimizer, agent._actor_optimizer)
+    for opt in opts:
+        opt.step = types.MethodType(zeroed_grad_step, opt)  # type: ignore[method-assign]
+    try:
+        agent._update_model()
+    finally:
+        for opt in opts:
+            del opt.step
+
+
+def run_in(context: Callable[[], Any]) -> Callable[[PPOAgent], None]:
+    def run(agent: PPOAgent) -> None:
+        with context():
+            agent._update_model()
+
+    return run
+
+
 VARIANTS: dict[str, Callable[[PPOAgent], None]] = {
     "old": lambda a: run_old(a, eager=True, loop_sgd=True),
     "lazy": lambda a: run_old(a, eager=False, loop_sgd=True),
+    "zerograd": run_zerograd,
     "new": lambda a: a._update_model(),
+    "threads": run_in(update_threads),
+    "1thread": run_in(lambda: torch_threads(1)),
     "bf16": run_bf16,
 }
 
@@ -109,7 +149,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--num_envs", type=int, default=256)
     parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
     args = parser.parse_args()
+    variants = {name: VARIANTS[name] for name in args.variants}
+    if "old" not in variants:
+        parser.error("--variants must include old (the figures are relative to it)")
     env = build_env(ENV, ENGINE, args.num_envs, "cpu")
     agent = build_agent(AGENT, env, "cpu", verbose=False)
     agent.start_training()
@@ -118,10 +162,10 @@ def main() -> None:
     agent._build_train_data()  # normalisers as they are now, as an iteration computes them before its update
     start_state = copy.deepcopy(agent._snapshot())
     buffer_state = copy.deepcopy(agent._exp_buffer)
-    times: dict[str, list[float]] = {name: [] for name in VARIANTS}
+    times: dict[str, list[float]] = {name: [] for name in variants}
     weights: dict[str, dict[str, torch.Tensor]] = {}
     for _ in range(args.rounds):
-        for name, variant in VARIANTS.items():
+        for name, variant in variants.items():
             agent._roll_back(copy.deepcopy(start_state))
             agent._exp_buffer = copy.deepcopy(buffer_state)  # same minibatch indices for every variant
             torch.manual_seed(0)

@@ -44,6 +44,7 @@ from mimickit.learning.logger import Logger
 from mimickit.learning.mp_optimizer import MPOptimizer
 from mimickit.learning.normalizer import Normalizer
 from mimickit.learning.return_tracker import ReturnTracker
+from mimickit.learning.update_threads import update_threads
 from mimickit.run_folder import INT_MODELS_DIR, MODEL_FILE, int_model_name, resume_row
 from mimickit.util.errors import MimicKitError
 from mimickit.util.threads import torch_threads
@@ -393,10 +394,13 @@ class BaseAgent(nn.Module, abc.ABC):
             if not self._rollout_train(self.config.steps_per_iter):
                 return None
         collected = time.perf_counter()
-        data_info = self._build_train_data()
-        train_info = self._update_model()
-        if update_normalizer:
-            self._update_normalizers()
+        # Torch's small ops on one thread, MKL's matrix products on all: the same weights bit for bit, and
+        # no per-op wait on a descheduled second thread (see update_threads).
+        with update_threads():
+            data_info = self._build_train_data()
+            train_info = self._update_model()
+            if update_normalizer:
+                self._update_normalizers()
         end = time.perf_counter()
         samples = self.config.steps_per_iter * self.get_num_envs() * mp_util.get_num_procs()
         # Where an iteration's wall time goes (metrics.jsonl only; log.txt keeps the reference columns).

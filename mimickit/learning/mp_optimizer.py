@@ -32,8 +32,15 @@ class MPOptimizer:
 
     def step(self, loss: torch.Tensor) -> None:
         """One update from the scalar `loss` (already averaged over this process's minibatch)."""
-        self._optimizer.zero_grad(set_to_none=False)
+        # Backward then writes each gradient instead of adding it to zeros (a fill and an add per tensor
+        # saved; the same values). A parameter this loss does not reach gets zeros where it had a gradient
+        # before (and with several processes, whose all-reduce needs every one), as zero_grad left it.
+        had_grad = [p.grad is not None or mp_util.enable_mp() for p in self._params]
+        self._optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        for p, had in zip(self._params, had_grad, strict=True):
+            if p.grad is None and had:
+                p.grad = torch.zeros_like(p)
         if mp_util.enable_mp():
             self._average_grads()
         if self._grad_clip > 0.0:
@@ -69,9 +76,6 @@ class MPOptimizer:
 
     def _average_grads(self) -> None:
         """All-reduce every gradient as one flat vector and divide by the number of processes."""
-        for p in self._params:
-            if p.grad is None:
-                p.grad = torch.zeros_like(p)
         flat = torch.cat([p.grad.reshape(-1) for p in self._params])
         mp_util.reduce_inplace_mean(flat)
         offset = 0
