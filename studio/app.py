@@ -12,8 +12,9 @@ import contextlib
 import io
 import logging
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 import viser
@@ -28,6 +29,7 @@ from studio.api import checkpoints as checkpoints_api
 from studio.api import compare as compare_api
 from studio.api import evals as evals_api
 from studio.api import library as library_api
+from studio.api import need
 from studio.api import runs as runs_api
 from studio.api import scene as scene_api
 from studio.api import stream as stream_api
@@ -43,6 +45,7 @@ from studio.rollout import Rollout, RolloutPlayer, RolloutSource
 from studio.runs import RunError, RunManager
 from studio.scene import StudioScene
 from studio.scene_proxy import VISER_HOST, add_scene_proxy
+from studio.scene_thread import SceneThread, SceneTimeout
 from studio.security import HostPolicy, PathError, RequestGuard, confine
 from studio.settings import Settings
 
@@ -63,7 +66,8 @@ class Studio:
     scene: StudioScene | None = None
     player: Player | None = None
     rollout: RolloutPlayer | None = None
-    _scene_lock: threading.RLock = field(default_factory=threading.RLock)
+    # The one thread that touches the scene, the clip player and the rollout (studio.scene_thread).
+    scene_thread: SceneThread = field(default_factory=SceneThread)
 
     @property
     def viser_port(self) -> int | None:
@@ -77,31 +81,55 @@ class Studio:
         """What the scene commands drive: the rollout while one is loaded, else the clip player."""
         return self.rollout if self.rollout is not None else self.player
 
-    def load_rollout(self, source: RolloutSource, *, play: bool = True) -> RolloutPlayer:
+    def command(self, fn: Callable[[Playable], object]) -> dict[str, Any]:
+        """`fn(active)` on the scene thread and the state after it (one command: nothing runs between);
+        503 when there is no scene."""
+
+        def run() -> dict[str, Any]:
+            target = self.active()
+            need(target, "the 3D scene")
+            fn(target)
+            return target.snapshot()
+
+        return self.scene_thread.call(run)
+
+    def load_rollout(self, source: RolloutSource, *, play: bool = True) -> dict[str, Any]:
         """Build the rollout (MimicKitError when the checkpoint does not fit) and show it instead of
-        the clip or the previous rollout."""
-        rollout = Rollout(source)  # slow (env, agent, checkpoint): before anything shown is touched
-        with self._scene_lock:
-            self.end_rollout()
+        the clip or the previous rollout; its state."""
+        rollout = Rollout(source)  # slow (env, agent, checkpoint): off the scene thread, then handed over
+
+        def install() -> dict[str, Any]:
+            self._end_rollout()
             if self.player:
                 self.player.pause()
-            self.rollout = RolloutPlayer(rollout, self.scene, play=play)
-            return self.rollout
+            self.rollout = RolloutPlayer(rollout, self.scene, self.scene_thread, play=play)
+            self.scene_thread.drive(self.rollout)
+            return self.rollout.snapshot()
+
+        try:
+            return self.scene_thread.call(install)
+        except BaseException:
+            if self.rollout is None or self.rollout.rollout is not rollout:
+                rollout.close()  # never shown: nothing else will close it
+            raise
 
     def end_rollout(self) -> None:
         """Stop and forget the rollout (before a clip is loaded)."""
-        with self._scene_lock:
-            rp, self.rollout = self.rollout, None
-            if rp is None:
-                return
-            rp.close()
-            if self.scene:
-                self.scene.end_rollout()
+        self.scene_thread.call(self._end_rollout)
+
+    def _end_rollout(self) -> None:
+        rp, self.rollout = self.rollout, None
+        self.scene_thread.drive(*([self.player] if self.player else []))
+        if rp is None:
+            return
+        rp.close()
+        if self.scene:
+            self.scene.end_rollout()
 
     def close(self) -> None:
-        self.end_rollout()
-        if self.player:
-            self.player.close()
+        with contextlib.suppress(Exception):  # a stuck scene thread must not keep the runs going
+            self.end_rollout()
+        self.scene_thread.close()
         self.runs.close()
         if self.viser_server:
             with contextlib.redirect_stdout(io.StringIO()):  # viser prints "Server stopped"
@@ -124,8 +152,9 @@ def create_studio(settings: Settings) -> Studio:
                 host=VISER_HOST, port=settings.viser_port, label="MimicKit Studio", verbose=False
             )
         studio.scene = StudioScene(studio.viser_server)
-        studio.player = Player(studio.scene)
-        SceneKeys(studio.viser_server, active=studio.active)  # the page is the one control surface
+        studio.player = Player(studio.scene, studio.scene_thread)
+        studio.scene_thread.call(studio.scene_thread.drive, studio.player)
+        SceneKeys(studio.viser_server, active=studio.active)  # the page is the one control surface; keys queue
         if settings.startup_clip is not None:
             _play_startup_clip(studio)
     # Reading every clip once takes a second or two with a large data folder: do it before anyone asks.
@@ -195,6 +224,10 @@ def _add_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(PathError)
     async def _path_error(_: Request, e: PathError) -> JSONResponse:
         return JSONResponse({"detail": str(e)}, status_code=e.status)
+
+    @app.exception_handler(SceneTimeout)
+    async def _scene_timeout(_: Request, e: SceneTimeout) -> JSONResponse:
+        return JSONResponse({"detail": str(e)}, status_code=503)
 
     @app.exception_handler(RunError)
     async def _run_error(_: Request, e: RunError) -> JSONResponse:

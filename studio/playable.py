@@ -1,42 +1,61 @@
 """What the clip player and the rollout player share, so the API drives either through one interface.
 
-A playable owns one worker thread that advances and draws while playing. Commands come from any thread
-(request handlers, the viser key handler) and take the playable's lock; `_wake` cuts the worker's idle
-wait short. Listeners (the live state the page is streamed) hear of every drawn frame and state change.
+A playable belongs to the studio's one scene thread (`studio.scene_thread.SceneThread`): its commands
+(`@command` methods) called from any other thread are queued there and waited for, so only that
+thread advances, draws and reads the simulation. Between commands the thread asks `due()` when the
+playable next wants to advance and calls `tick(now)` then. `snapshot()` off the scene thread returns
+the state published after the last change (no waiting: the event loop may read it). Listeners hear of
+every drawn frame and state change, on the scene thread.
 """
 
 from __future__ import annotations
 
 import abc
-import threading
+import functools
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
+
+from studio.scene_thread import SceneThread
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def command(method: F) -> F:
+    """Run `method` on the playable's scene thread (queued and waited for when called from another)."""
+
+    @functools.wraps(method)
+    def run(self: Playable, *args: Any, **kwargs: Any) -> Any:
+        if self._here():
+            return method(self, *args, **kwargs)
+        return self.owner.call(method, self, *args, **kwargs)
+
+    return run  # type: ignore[return-value]
 
 
 class Playable(abc.ABC):
     state: Any  # a dataclass with at least `playing`, `speed` and `follow`
 
-    def __init__(self, thread_name: str) -> None:
-        self._lock = threading.RLock()
-        self._wake = threading.Event()
-        self._closed = threading.Event()
+    def __init__(self, owner: SceneThread | None) -> None:
+        """`owner` None: nothing advances it and its commands run on the caller's thread (a test's)."""
+        self.owner = owner
         self._listeners: list[Callable[[Any], None]] = []
-        self._thread = threading.Thread(target=self._run, name=thread_name, daemon=True)
+        self._published: dict[str, Any] | None = None
 
     def add_listener(self, fn: Callable[[Any], None]) -> None:
-        """`fn(playable)` after every drawn frame and every state change."""
+        """`fn(playable)` after every drawn frame and every state change (on the scene thread)."""
         self._listeners.append(fn)
 
-    # -- commands (any thread) ----------------------------------------------------------------------
+    # -- commands -------------------------------------------------------------------------------------
 
     @abc.abstractmethod
     def play(self) -> None: ...
 
+    @command
     def pause(self) -> None:
-        with self._lock:
-            self.state.playing = False
+        self.state.playing = False
         self._changed()
 
+    @command
     def toggle(self) -> None:
         self.pause() if self.state.playing else self.play()
 
@@ -52,29 +71,42 @@ class Playable(abc.ABC):
         self, *, speed: float | None = None, loop: bool | None = None, follow: bool | None = None
     ) -> None: ...
 
-    @abc.abstractmethod
+    def close(self) -> None:  # noqa: B027 - most playables hold nothing
+        """Release what the playable holds (a subclass's env); a command."""
+
+    # -- reading --------------------------------------------------------------------------------------
+
     def snapshot(self) -> dict[str, Any]:
-        """The state as the API returns it (JSON-ready)."""
+        """The state as the API returns it (JSON-ready): computed now on the scene thread, else the one
+        published after the last change."""
+        if self._here():
+            return self._snapshot()
+        return self._published if self._published is not None else self.owner.call(self._snapshot)
 
-    def close(self) -> None:
-        self._closed.set()
-        self._wake.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=5)
+    def _here(self) -> bool:
+        return self.owner is None or self.owner.on_thread()
 
-    # -- the worker ----------------------------------------------------------------------------------
-
-    def _start(self) -> None:
-        """Start the worker; a subclass calls it once its state is ready to draw."""
-        self._thread.start()
+    def published(self) -> dict[str, Any] | None:
+        """The state published after the last change (None before the first), from any thread."""
+        return self._published
 
     @abc.abstractmethod
-    def _run(self) -> None:
-        """The worker's loop, until `_closed` is set."""
+    def _snapshot(self) -> dict[str, Any]: ...
+
+    # -- advancing (the scene thread) -----------------------------------------------------------------
+
+    @abc.abstractmethod
+    def due(self) -> float | None:
+        """`time.monotonic()` at which `tick` should next run; None: nothing to do until a command."""
+
+    @abc.abstractmethod
+    def tick(self, now: float) -> None:
+        """Advance what is due at `now` (the scene thread calls it between commands)."""
 
     def _changed(self) -> None:
+        self._published = self._snapshot()
         for fn in self._listeners:
             try:
                 fn(self)
             except Exception as e:  # noqa: BLE001 - a listener's hiccup must not stop the playback
-                print(f"{self._thread.name} listener: {e!r}")
+                print(f"{type(self).__name__} listener: {e!r}")

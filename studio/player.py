@@ -1,4 +1,4 @@
-"""The clip player: which frame of which clip is shown, advanced by a thread at clip fps × speed.
+"""The clip player: which frame of which clip is shown, advanced by the scene thread at clip fps × speed.
 
 The state lives here on the server (one scene shared by every browser), so REST calls, the viser
 GUI and the keyboard all drive the same player, and tests can read it back through the API.
@@ -12,8 +12,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from studio.clip_pose import ClipPose
-from studio.playable import Playable
+from studio.playable import Playable, command
 from studio.scene import StudioScene
+from studio.scene_thread import SceneThread
 
 MAX_UPDATE_HZ = 60.0  # a 120 fps clip at speed 2 still sends at most this many scene updates a second
 MIN_SPEED, MAX_SPEED = 0.05, 8.0
@@ -31,84 +32,84 @@ class PlayerState:
 
 
 class Player(Playable):
-    def __init__(self, scene: StudioScene) -> None:
-        super().__init__("clip-player")
+    def __init__(self, scene: StudioScene, owner: SceneThread) -> None:
+        super().__init__(owner)
         self.scene = scene
         self.pose: ClipPose | None = None
         self.state = PlayerState()
         self._root = [0.0, 0.0, 0.0]
-        self._start()
+        self._last = 0.0  # monotonic time the clock last advanced to
 
     # -- commands ---------------------------------------------------------------------------------
 
+    @command
     def load(self, pose: ClipPose, *, play: bool = False) -> None:
-        with self._lock:
-            self.pose = pose
-            self.scene.show_clip(pose)
-            self.state.playing = play
-            self._seek_frame(0)
-        self._wake.set()
+        self.pose = pose
+        self.scene.show_clip(pose)
+        self.state.playing = play
+        self._last = time.monotonic()
+        self._seek_frame(0)
 
+    @command
     def play(self) -> None:
-        with self._lock:
-            if self.pose is None:
-                return
-            if not self.state.loop and self.state.frame >= self.pose.num_frames - 1:
-                self._seek_frame(0)  # play at the end of a non-looping clip starts it over
-            self.state.playing = True
+        if self.pose is None:
+            return
+        if not self.state.loop and self.state.frame >= self.pose.num_frames - 1:
+            self._seek_frame(0)  # play at the end of a non-looping clip starts it over
+        if not self.state.playing:
+            self._last = time.monotonic()
+        self.state.playing = True
         self._changed()
-        self._wake.set()
 
+    @command
     def step(self, frames: int = 1) -> None:
         """Pause and move `frames` (may be negative), wrapping when looping, else clamped."""
-        with self._lock:
-            if self.pose is None:
-                return
-            self.state.playing = False
-            self._seek_frame(self._wrap_or_clamp(self.state.frame + frames))
+        if self.pose is None:
+            return
+        self.state.playing = False
+        self._seek_frame(self._wrap_or_clamp(self.state.frame + frames))
 
+    @command
     def seek(self, *, frame: int | None = None, time_s: float | None = None) -> None:
-        with self._lock:
-            if self.pose is None:
-                return
-            if frame is None:
-                frame = round((time_s or 0.0) * self.pose.fps)
-            self._seek_frame(max(0, min(int(frame), self.pose.num_frames - 1)))
+        if self.pose is None:
+            return
+        if frame is None:
+            frame = round((time_s or 0.0) * self.pose.fps)
+        self._seek_frame(max(0, min(int(frame), self.pose.num_frames - 1)))
 
+    @command
     def configure(self, *, speed: float | None = None, loop: bool | None = None, follow: bool | None = None) -> None:
-        with self._lock:
-            if speed is not None:
-                self.state.speed = min(max(float(speed), MIN_SPEED), MAX_SPEED)
-            if loop is not None:
-                self.state.loop = bool(loop)
-            if follow is not None:
-                self.state.follow = bool(follow)
-                if self.pose is not None:
-                    self._draw()
+        if speed is not None:
+            self.state.speed = min(max(float(speed), MIN_SPEED), MAX_SPEED)
+        if loop is not None:
+            self.state.loop = bool(loop)
+        if follow is not None:
+            self.state.follow = bool(follow)
+            if self.pose is not None:
+                self._draw()
         self._changed()
 
-    def snapshot(self) -> dict[str, Any]:
+    def _snapshot(self) -> dict[str, Any]:
         """The player's state as the API reports it."""
-        with self._lock:
-            s = self.state
-            pose = self.pose
-            return {
-                "mode": "clip",
-                "clip": str(pose.path) if pose else None,
-                "char": str(pose.char_path) if pose else None,
-                "num_frames": pose.num_frames if pose else 0,
-                "fps": pose.fps if pose else None,
-                "duration": pose.motion.duration if pose else 0.0,
-                "frame": s.frame,
-                "time": s.time,
-                "playing": s.playing,
-                "speed": s.speed,
-                "loop": s.loop,
-                "follow": s.follow,
-                "updates": s.updates,
-                "root_pos": list(self._root),
-                "contacts": dict(zip(pose.feet, pose.contacts(s.frame).tolist(), strict=True)) if pose else {},
-            }
+        s = self.state
+        pose = self.pose
+        return {
+            "mode": "clip",
+            "clip": str(pose.path) if pose else None,
+            "char": str(pose.char_path) if pose else None,
+            "num_frames": pose.num_frames if pose else 0,
+            "fps": pose.fps if pose else None,
+            "duration": pose.motion.duration if pose else 0.0,
+            "frame": s.frame,
+            "time": s.time,
+            "playing": s.playing,
+            "speed": s.speed,
+            "loop": s.loop,
+            "follow": s.follow,
+            "updates": s.updates,
+            "root_pos": list(self._root),
+            "contacts": dict(zip(pose.feet, pose.contacts(s.frame).tolist(), strict=True)) if pose else {},
+        }
 
     # -- internals --------------------------------------------------------------------------------
 
@@ -128,24 +129,16 @@ class Player(Playable):
         self.state.updates += 1
         self._changed()
 
-    def _run(self) -> None:
-        """Advance by wall-clock time while playing; draw only when the frame index changes."""
-        last = time.monotonic()
-        while not self._closed.is_set():
-            with self._lock:
-                playing, pose = self.state.playing, self.pose
-                period = 1.0 / min(pose.fps * self.state.speed, MAX_UPDATE_HZ) if pose else 0.1
-            if not playing or pose is None:
-                self._wake.wait(0.1)
-                self._wake.clear()
-                last = time.monotonic()
-                continue
-            time.sleep(max(0.0, last + period - time.monotonic()))
-            now = time.monotonic()
-            with self._lock:
-                if self.state.playing and self.pose is pose:
-                    self._advance((now - last) * self.state.speed)
-            last = now
+    def due(self) -> float | None:
+        if not self.state.playing or self.pose is None:
+            return None
+        return self._last + 1.0 / min(self.pose.fps * self.state.speed, MAX_UPDATE_HZ)
+
+    def tick(self, now: float) -> None:
+        """Advance by the wall-clock time since the last tick; draw only when the frame index changes."""
+        if self.state.playing and self.pose is not None:
+            self._advance((now - self._last) * self.state.speed)
+        self._last = now
 
     def _advance(self, dt: float) -> None:
         pose, s = self.pose, self.state

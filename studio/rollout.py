@@ -10,7 +10,7 @@ recorded in a ring buffer (qpos, reward, each unweighted reward term), the last 
 an episode that ends is reset at once; a newer checkpoint file (polled mtime) is loaded and starts a
 new episode.
 
-`RolloutPlayer` runs a `Rollout` in a worker thread at the env's control rate (× speed) and draws it
+`RolloutPlayer` runs a `Rollout` on the studio's scene thread at the env's control rate (× speed) and draws it
 in the studio's scene. Its commands mirror the clip player's (play, pause, step, seek, configure), so
 the REST scene commands and the keys drive whichever is loaded: the timeline is the recorded history;
 seeking or stepping back shows a recorded frame (the simulation waits); play goes on from the frame
@@ -36,8 +36,9 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import DataPaths
 from mimickit.util.warn import collect_warnings
 from studio.checkpoints import configs_beside
-from studio.playable import Playable
+from studio.playable import Playable, command
 from studio.scene import BODY_ERROR_SCALE_M, BODY_ERROR_STOPS, SUPPORT_WINDOW_S, StudioScene
+from studio.scene_thread import SceneThread
 
 HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
 RELOAD_POLL_S = 1.0  # how often the checkpoint's mtime is checked
@@ -289,10 +290,12 @@ class RolloutState:
 
 
 class RolloutPlayer(Playable):
-    """A `Rollout` stepped by a worker thread and drawn in `scene` (None: not drawn, for tests)."""
+    """A `Rollout` stepped by the scene thread `owner` and drawn in `scene` (None: not drawn, for tests)."""
 
-    def __init__(self, rollout: Rollout, scene: StudioScene | None = None, *, play: bool = False) -> None:
-        super().__init__("rollout")
+    def __init__(
+        self, rollout: Rollout, scene: StudioScene | None, owner: SceneThread | None = None, *, play: bool = False
+    ) -> None:
+        super().__init__(owner)
         self.rollout = rollout
         self.scene = scene
         self.state = RolloutState(playing=play)
@@ -300,69 +303,71 @@ class RolloutPlayer(Playable):
         if scene is not None:
             error_bodies = rollout.char_bodies if rollout.body_names else None  # coloured by their error
             scene.show_rollout(rollout.model, rollout.ghost_bodies, error_bodies)
-        with self._lock:
-            self._draw()
-        self._start()
+        now = time.monotonic()
+        self._next_t, self._next_poll = now, now + RELOAD_POLL_S
+        self._draw()
 
-    # -- commands (any thread) ----------------------------------------------------------------------
+    # -- commands (any thread: run on the scene thread) ----------------------------------------------
 
+    @command
     def play(self) -> None:
         """Play on from the frame shown: through the recorded history first (at the control rate),
         then simulating from the live end."""
-        with self._lock:
-            self.state.playing = True
+        if not self.state.playing:
+            self._next_t = time.monotonic()
+        self.state.playing = True
         self._changed()
-        self._wake.set()
 
+    @command
     def step(self, frames: int = 1) -> None:
         """Pause; forward through the recorded history, simulating at its live end; back for frames < 0."""
-        with self._lock:
-            self.state.playing = False
-            hist = self.rollout.history
-            if frames < 0:
-                self.state.view = max(0, self._shown_index() + frames)
-            else:
-                for _ in range(min(frames, MAX_STEP_FRAMES)):
-                    i = self._shown_index()
-                    if i < len(hist) - 1:
-                        self.state.view = i + 1
-                    else:
-                        self.rollout.step()
-                        self.state.view = None
-                if self.state.view is not None and self.state.view >= len(hist) - 1:
+        self.state.playing = False
+        hist = self.rollout.history
+        if frames < 0:
+            self.state.view = max(0, self._shown_index() + frames)
+        else:
+            for _ in range(min(frames, MAX_STEP_FRAMES)):
+                i = self._shown_index()
+                if i < len(hist) - 1:
+                    self.state.view = i + 1
+                else:
+                    self.rollout.step()
                     self.state.view = None
-            self._draw()
+            if self.state.view is not None and self.state.view >= len(hist) - 1:
+                self.state.view = None
+        self._draw()
 
+    @command
     def seek(self, *, frame: int | None = None, time_s: float | None = None) -> None:
         """Show a recorded frame (pauses): `frame` indexes the history, `time_s` is rollout time."""
-        with self._lock:
-            hist = self.rollout.history
-            if frame is None:  # the last frame at or before that step (an episode's end and the next
-                step = round((time_s or 0.0) / self.rollout.dt)  # episode's start share a step number)
-                frame = max([0, *(i for i, f in enumerate(hist) if f.step <= step)])
-            self.state.playing = False
-            i = max(0, min(int(frame), len(hist) - 1))
-            self.state.view = None if i == len(hist) - 1 else i
-            self._draw()
+        hist = self.rollout.history
+        if frame is None:  # the last frame at or before that step (an episode's end and the next
+            step = round((time_s or 0.0) / self.rollout.dt)  # episode's start share a step number)
+            frame = max([0, *(i for i, f in enumerate(hist) if f.step <= step)])
+        self.state.playing = False
+        i = max(0, min(int(frame), len(hist) - 1))
+        self.state.view = None if i == len(hist) - 1 else i
+        self._draw()
 
+    @command
     def configure(self, *, speed: float | None = None, loop: bool | None = None, follow: bool | None = None) -> None:
-        with self._lock:
-            if speed is not None:
-                self.state.speed = min(max(float(speed), MIN_SPEED), MAX_SPEED)
-            if follow is not None:
-                self.state.follow = bool(follow)
-                self._draw()
+        if speed is not None:
+            self.state.speed = min(max(float(speed), MIN_SPEED), MAX_SPEED)
+        if follow is not None:
+            self.state.follow = bool(follow)
+            self._draw()
         self._changed()
 
+    @command
     def reset(self) -> None:
         """Start a new episode now."""
-        with self._lock:
-            self.rollout.reset()
-            self.state.view = None
-            self._draw()
+        self.rollout.reset()
+        self.state.view = None
+        self._draw()
 
+    @command
     def close(self) -> None:
-        super().close()
+        self.state.playing = False
         self.rollout.close()
 
     def plays_from(self, folder: Path) -> bool:
@@ -371,78 +376,77 @@ class RolloutPlayer(Playable):
 
     # -- reading ------------------------------------------------------------------------------------
 
-    def snapshot(self) -> dict[str, Any]:
+    def _snapshot(self) -> dict[str, Any]:
         """The rollout's state, with the clip player's keys (frame/num_frames is the history)."""
-        with self._lock:
-            r, s = self.rollout, self.state
-            i = self._shown_index()
-            shown = r.history[i]
-            latest = r.history[-1]
-            live_terms = self._last_with_terms(len(r.history) - 1)  # an episode's first frame has none
-            src = r.source
-            return {
-                "mode": "rollout",
-                "clip": None,
-                "char": None,
-                "num_frames": len(r.history),
-                "fps": r.control_freq,
-                "duration": len(r.history) * r.dt,
-                "frame": i,
-                "time": shown.step * r.dt,
-                "playing": s.playing,
-                "speed": s.speed,
-                "loop": True,
-                "follow": s.follow,
-                "updates": s.updates,
-                "root_pos": list(s.root_pos),
-                "contacts": {},
-                "rollout": {
-                    **src.to_json(),
-                    "checkpoint_mtime": r.checkpoint_mtime,
-                    "reloads": r.reloads,
-                    "error": r.error,
-                    "control_freq": r.control_freq,
-                    "step": r.steps,
-                    "live": s.view is None,
-                    # The frame the scene shows (a history frame while scrubbed back), as the label shows it.
+        r, s = self.rollout, self.state
+        i = self._shown_index()
+        shown = r.history[i]
+        latest = r.history[-1]
+        live_terms = self._last_with_terms(len(r.history) - 1)  # an episode's first frame has none
+        src = r.source
+        return {
+            "mode": "rollout",
+            "clip": None,
+            "char": None,
+            "num_frames": len(r.history),
+            "fps": r.control_freq,
+            "duration": len(r.history) * r.dt,
+            "frame": i,
+            "time": shown.step * r.dt,
+            "playing": s.playing,
+            "speed": s.speed,
+            "loop": True,
+            "follow": s.follow,
+            "updates": s.updates,
+            "root_pos": list(s.root_pos),
+            "contacts": {},
+            "rollout": {
+                **src.to_json(),
+                "checkpoint_mtime": r.checkpoint_mtime,
+                "reloads": r.reloads,
+                "error": r.error,
+                "control_freq": r.control_freq,
+                "step": r.steps,
+                "live": s.view is None,
+                # The frame the scene shows (a history frame while scrubbed back), as the label shows it.
+                "episode": shown.episode,
+                "episode_step": shown.episode_step,
+                "episode_return": shown.episode_return,
+                "reward": shown.reward,  # None for an episode's first frame
+                "reward_terms": shown.terms or {},
+                "body_error": r.body_error_json(shown),  # the frame shown's, None without a reference
+                "latest": {  # the live end, the newest simulated step
+                    "step": latest.step,
+                    "episode": latest.episode,
+                    "episode_step": latest.episode_step,
+                    "episode_return": latest.episode_return,
+                    "reward": live_terms.reward if live_terms else None,
+                    "reward_terms": live_terms.terms if live_terms else {},
+                },
+                "episodes": [e.to_json() for e in list(r.episodes)[-10:]],
+                "follow_height": s.height,
+                "reward_weights": r.reward_weights,
+                "history_seconds": len(r.history) * r.dt,
+                "shown": {
+                    "step": shown.step,
                     "episode": shown.episode,
                     "episode_step": shown.episode_step,
-                    "episode_return": shown.episode_return,
-                    "reward": shown.reward,  # None for an episode's first frame
+                    "reward": shown.reward,
                     "reward_terms": shown.terms or {},
-                    "body_error": r.body_error_json(shown),  # the frame shown's, None without a reference
-                    "latest": {  # the live end, the newest simulated step
-                        "step": latest.step,
-                        "episode": latest.episode,
-                        "episode_step": latest.episode_step,
-                        "episode_return": latest.episode_return,
-                        "reward": live_terms.reward if live_terms else None,
-                        "reward_terms": live_terms.terms if live_terms else {},
-                    },
-                    "episodes": [e.to_json() for e in list(r.episodes)[-10:]],
-                    "follow_height": s.height,
-                    "reward_weights": r.reward_weights,
-                    "history_seconds": len(r.history) * r.dt,
-                    "shown": {
-                        "step": shown.step,
-                        "episode": shown.episode,
-                        "episode_step": shown.episode_step,
-                        "reward": shown.reward,
-                        "reward_terms": shown.terms or {},
-                        "episode_return": shown.episode_return,
-                    },
+                    "episode_return": shown.episode_return,
                 },
-            }
+            },
+        }
 
+    @command
     def history_qpos(self) -> list[np.ndarray]:
         """Copies of the recorded qpos (the timeline), oldest first: what a replay export draws."""
-        with self._lock:
-            return [f.qpos.copy() for f in self.rollout.history]
+        return [f.qpos.copy() for f in self.rollout.history]
 
+    @command
     def history_rows(self, since_step: int = -1, limit: int = 5000) -> list[dict[str, Any]]:
         """Recorded steps after `since_step` with their reward and terms (episode starts left out)."""
-        with self._lock:
-            frames = [f for f in self.rollout.history if f.step > since_step and f.terms is not None]
+        frames = [f for f in self.rollout.history if f.step > since_step and f.terms is not None]
         dt = self.rollout.dt
         return [
             {
@@ -513,44 +517,30 @@ class RolloutPlayer(Playable):
         self._ground = min(self._ground, *lows)
         return max(0.0, min(lows) - self._ground)
 
-    def _run(self) -> None:
+    def due(self) -> float | None:
+        """The next control step while playing, else the next checkpoint poll."""
+        return min(self._next_t, self._next_poll) if self.state.playing else self._next_poll
+
+    def tick(self, now: float) -> None:
         """Step at control rate × speed while playing (no bursts to catch up); poll the checkpoint."""
-        next_t = time.monotonic()
-        next_poll = next_t + RELOAD_POLL_S
-        while not self._closed.is_set():
-            now = time.monotonic()
-            if now >= next_poll:
-                next_poll = now + RELOAD_POLL_S
-                try:
-                    with self._lock:
-                        if self.rollout.reload_if_newer():
-                            self.state.view = None
-                            self._draw()
-                        elif self.rollout.error:
-                            self._changed()
-                except Exception as e:  # noqa: BLE001
-                    self.rollout.error = f"reload failed: {e!r}"
-            with self._lock:
-                playing = self.state.playing
-                period = self.rollout.dt / self.state.speed
-            if not playing:
-                self._wake.wait(min(0.1, max(0.0, next_poll - time.monotonic())))
-                self._wake.clear()
-                next_t = time.monotonic()
-                continue
-            delay = next_t - time.monotonic()
-            if delay > 0:
-                self._wake.wait(delay)
-                self._wake.clear()
-                continue
+        if now >= self._next_poll:
+            self._next_poll = now + RELOAD_POLL_S
             try:
-                with self._lock:
-                    if self.state.playing:
-                        self._advance()
-                        self._draw()
-            except Exception as e:  # noqa: BLE001 - a simulation error pauses the rollout, reported in state
-                with self._lock:
-                    self.state.playing = False
-                    self.rollout.error = f"simulation stopped: {e!r}"
-                self._changed()
-            next_t = max(next_t + period, time.monotonic() - period)
+                if self.rollout.reload_if_newer():
+                    self.state.view = None
+                    self._draw()
+                elif self.rollout.error:
+                    self._changed()
+            except Exception as e:  # noqa: BLE001
+                self.rollout.error = f"reload failed: {e!r}"
+        if not self.state.playing or now < self._next_t:
+            return
+        period = self.rollout.dt / self.state.speed
+        try:
+            self._advance()
+            self._draw()
+        except Exception as e:  # noqa: BLE001 - a simulation error pauses the rollout, reported in state
+            self.state.playing = False
+            self.rollout.error = f"simulation stopped: {e!r}"
+            self._changed()
+        self._next_t = max(self._next_t + period, now - period)

@@ -11,6 +11,7 @@ from typing import Any
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse
 from pydantic import Field
+from starlette.concurrency import run_in_threadpool
 
 from mimickit.util.errors import MimicKitError
 from studio.api import need, studio_of
@@ -82,6 +83,13 @@ def _target(request: Request) -> Playable:
     return target
 
 
+def _command(request: Request, fn: Any) -> dict[str, Any]:
+    """`fn(active playable)` as one scene command; the state after it."""
+    studio = studio_of(request)
+    need(studio.active(), "the 3D scene")
+    return studio.command(fn)
+
+
 def _rollout(request: Request) -> RolloutPlayer:
     rp = studio_of(request).rollout
     if rp is None:
@@ -96,9 +104,7 @@ def load_clip(body: LoadClip, request: Request) -> dict[str, Any]:
     player = _player(request)
     clip = confine(body.path, studio.settings.readable_roots)
     pose = pose_clip(clip, _char_for(studio, body.path, clip, body.char))
-    studio.end_rollout()
-    player.load(pose, play=body.play)
-    return player.snapshot()
+    return _show_clip(studio, player, pose, play=body.play)
 
 
 @router.post("/show_character")
@@ -108,9 +114,18 @@ def show_character(body: ShowCharacter, request: Request) -> dict[str, Any]:
     studio = studio_of(request)
     player = _player(request)
     pose = default_pose(character_path(studio, body.path))
-    studio.end_rollout()
-    player.load(pose, play=False)
-    return player.snapshot()
+    return _show_clip(studio, player, pose, play=False)
+
+
+def _show_clip(studio: Any, player: Player, pose: Any, *, play: bool) -> dict[str, Any]:
+    """End any rollout and load `pose` in one scene command (nothing runs between); the state."""
+
+    def show() -> dict[str, Any]:
+        studio.end_rollout()
+        player.load(pose, play=play)
+        return player.snapshot()
+
+    return studio.scene_thread.call(show)
 
 
 @router.post("/load_rollout")
@@ -158,13 +173,13 @@ def roll_out(
         check_finite_checkpoint(checkpoint)  # unreadable or diverged (NaN weights): one line, before any build
         if source.data_dir is None:
             source.data_dir = studio.settings.data_dir
-        rp = studio.load_rollout(source, play=play)
+        snap = studio.load_rollout(source, play=play)
     except MimicKitError:
         raise
     except Exception as e:  # noqa: BLE001 - a broken config is the user's to fix: one line, not a traceback
         first = (str(e).strip().splitlines() or [""])[0]
         raise HTTPException(400, f"cannot roll out {checkpoint}: {e.__class__.__name__}: {first}") from None
-    return rp.snapshot()
+    return snap
 
 
 @router.get("/rollout/history")
@@ -203,58 +218,51 @@ def rollout_close(request: Request) -> dict[str, Any]:
 
 @router.post("/play")
 def play(request: Request) -> dict[str, Any]:
-    target = _target(request)
-    target.play()
-    return target.snapshot()
+    return _command(request, lambda t: t.play())
 
 
 @router.post("/pause")
 def pause(request: Request) -> dict[str, Any]:
-    target = _target(request)
-    target.pause()
-    return target.snapshot()
+    return _command(request, lambda t: t.pause())
 
 
 @router.post("/toggle")
 def toggle(request: Request) -> dict[str, Any]:
     """Play/pause, as the Enter key."""
-    target = _target(request)
-    target.toggle()
-    return target.snapshot()
+    return _command(request, lambda t: t.toggle())
 
 
 @router.post("/step")
 def step(request: Request, body: Step | None = None) -> dict[str, Any]:
     """Pause and move by `frames` (default 1, as the Space key)."""
-    target = _target(request)
-    target.step((body or Step()).frames)
-    return target.snapshot()
+    frames = (body or Step()).frames
+    return _command(request, lambda t: t.step(frames))
 
 
 @router.post("/seek")
 def seek(body: Seek, request: Request) -> dict[str, Any]:
-    target = _target(request)
     if body.frame is None and body.time is None:
         raise HTTPException(422, "give `frame` or `time`")
-    target.seek(frame=body.frame, time_s=body.time)
-    return target.snapshot()
+    return _command(request, lambda t: t.seek(frame=body.frame, time_s=body.time))
 
 
 @router.post("/configure")
 def configure(body: Configure, request: Request) -> dict[str, Any]:
     """Speed, loop and camera follow."""
-    target = _target(request)
-    target.configure(speed=body.speed, loop=body.loop, follow=body.follow)
-    return target.snapshot()
+    return _command(request, lambda t: t.configure(speed=body.speed, loop=body.loop, follow=body.follow))
 
 
 @router.get("/state")
-def state(request: Request) -> dict[str, Any]:
+async def state(request: Request) -> dict[str, Any]:
     """`mode` (clip or rollout), frame, num_frames, time, playing, speed, loop, follow, scene updates
     sent and the drawn root position. Clip mode: clip, character and which feet touch the ground.
     Rollout mode: `rollout` with the checkpoint and its mtime, reloads, the step, the episode and its
     return, the last reward and reward terms, and the frame shown (the timeline is the history)."""
-    return _target(request).snapshot()
+    target = _target(request)
+    # What the scene thread published after its last change: read on the event loop, never waiting
+    # for a draw (a worker thread per request was most of this endpoint's cost under 50 clients).
+    snap = target.published()
+    return snap if snap is not None else await run_in_threadpool(target.snapshot)
 
 
 REPLAYS_DIR = "replays"

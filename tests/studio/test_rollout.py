@@ -19,6 +19,7 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_ROOT
 from studio.checkpoints import agent_type, check_fit_char, check_fit_env, fit_message, inspect_checkpoint
 from studio.rollout import Rollout, RolloutPlayer, source_for_checkpoint
+from studio.scene_thread import SceneThread
 from tests.conftest import PROJECT_HUMANOID
 from tests.studio.conftest import ENGINE_YAML, ENV_YAML, smaller_obs_env_yaml, wait_for, write_checkpoint_dir
 
@@ -98,8 +99,16 @@ def test_rollout_steps_records_and_resets(rollout: Rollout) -> None:
     np.testing.assert_allclose(r.pose(old)[0][r.root_body], old.qpos[:3], atol=1e-6)
 
 
+def played(rollout: Rollout, owner: SceneThread) -> RolloutPlayer:
+    """`rollout` playing on its own scene thread (as the studio's, without a viser scene)."""
+    rp = owner.call(RolloutPlayer, rollout, None, owner, play=True)
+    owner.call(owner.drive, rp)
+    return rp
+
+
 def test_player_paces_pauses_steps_and_scrubs(rollout: Rollout) -> None:
-    rp = RolloutPlayer(rollout, None, play=True)
+    owner = SceneThread()
+    rp = played(rollout, owner)
     try:
         time.sleep(1.5)
         rp.pause()
@@ -133,12 +142,14 @@ def test_player_paces_pauses_steps_and_scrubs(rollout: Rollout) -> None:
         assert rp.snapshot()["rollout"]["live"]
     finally:
         rp.close()
+        owner.close()
 
 
 def test_newer_checkpoint_is_reloaded(tmp_path: Path, ckpt: Path, other_obs_ckpt: Path) -> None:
     run = tmp_path / "run"
     shutil.copytree(ckpt.parent, run)
-    rp = RolloutPlayer(Rollout(source_for_checkpoint(run / "model.pt")), None, play=True)
+    owner = SceneThread()
+    rp = played(Rollout(source_for_checkpoint(run / "model.pt")), owner)
     try:
         weight = rp.rollout.agent.state_dict()["_model._action_dist._mean_net.weight"].clone()
         state = torch.load(run / "model.pt", weights_only=True)
@@ -157,6 +168,7 @@ def test_newer_checkpoint_is_reloaded(tmp_path: Path, ckpt: Path, other_obs_ckpt
         assert torch.allclose(rp.rollout.agent.state_dict()["_model._action_dist._mean_net.weight"], weight + 0.5)
     finally:
         rp.close()
+        owner.close()
 
 
 def test_misfit_checkpoint_is_refused_in_one_line(ckpt: Path, other_obs_ckpt: Path) -> None:
