@@ -14,6 +14,20 @@ httpx clients, round robin over health, scene state, runs and motions, while the
 (errors counted):
 
     python benchmarks/studio_bench.py --clients 40 --streams 10 --duration 30 --train-cmd "mimickit train ..."
+
+The request loops speak HTTP/1.1 over asyncio streams (`--client raw`, the default with `--duration`): one
+keep-alive connection each, the status and the whole body checked. httpx costs the one Python process
+that runs all 40 clients about a millisecond of CPU a request, so on two shared cores its p99 measured
+mostly the queue in front of the client; `--client httpx` measures with it.
+
+`--rollout-seconds S` then rolls out `--checkpoint` (the demo policy by default) in the scene and reads
+its step count from `/api/scene/state` over S seconds: steps/s against its control rate (30/s).
+`--idle-seconds S` last: the rollout closed, the clip paused, no stream and no viser client open, the
+server's CPU (user + system, /proc/PID/stat) over S seconds as a share of one core; needs the server
+started here or `--server-pid`. All of it inside `--train-cmd`:
+
+    python benchmarks/studio_bench.py --clients 40 --streams 10 --duration 30 --rollout-seconds 20 \
+        --idle-seconds 30 --train-cmd "mimickit train --arg_file args/deepmimic_humanoid_demo_ppo_args.txt ..."
 """
 
 from __future__ import annotations
@@ -42,13 +56,20 @@ import zstandard
 from studio.settings import is_loopback
 
 ENDPOINTS = ["/api/health", "/api/scene/state", "/api/runs", "/api/motions"]
+DEMO_ROLLOUT = {
+    "checkpoint": "data/models/deepmimic_humanoid_demo_model.pt",
+    "env_config": "data/envs/deepmimic_humanoid_env.yaml",
+    "agent_config": "data/agents/deepmimic_humanoid_ppo_cpu_agent.yaml",
+    "engine_config": "data/engines/mujoco_engine.yaml",
+}
+CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 
 @contextmanager
-def studio_server(args: argparse.Namespace) -> Iterator[str]:
-    """The URL of a server: the one given, or one started here for the run of the benchmark."""
+def studio_server(args: argparse.Namespace) -> Iterator[tuple[str, int | None]]:
+    """The URL and pid (None if unknown) of a server: the one given, or one started here for the run."""
     if args.url:
-        yield args.url.rstrip("/") + "/"
+        yield args.url.rstrip("/") + "/", args.server_pid
         return
     runs_dir = tempfile.mkdtemp(prefix="studio_bench_")
     argv = [sys.executable, "-m", "studio.cli", "serve", "--port", "0", "--runs-dir", runs_dir]
@@ -59,7 +80,7 @@ def studio_server(args: argparse.Namespace) -> Iterator[str]:
         line = proc.stdout.readline()
         if "http://" not in line:
             raise SystemExit(f"the studio did not start: {line!r}")
-        yield line.split()[-1]
+        yield line.split()[-1], proc.pid
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(20)
@@ -137,14 +158,68 @@ async def api_latency(base: str, clients: int, requests: int) -> dict[str, list[
     return out
 
 
+class RawClient:
+    """HTTP/1.1 GETs on one keep-alive connection over asyncio streams: what a browser's connection
+    costs the server, at a small part of httpx's CPU per request on the client's side."""
+
+    def __init__(self, base: str) -> None:
+        url = urlparse(base)
+        self.host, self.port = url.hostname, url.port
+        self.conn: tuple[asyncio.StreamReader, asyncio.StreamWriter] | None = None
+
+    async def get(self, path: str) -> bytes:
+        """The body of a 200 answer to `GET path`; ValueError (or an OSError) otherwise."""
+        if self.conn is None:
+            self.conn = await asyncio.open_connection(self.host, self.port)
+        reader, writer = self.conn
+        writer.write(f"GET {path} HTTP/1.1\r\nHost: {self.host}:{self.port}\r\nAccept: */*\r\n\r\n".encode())
+        try:
+            head = (await reader.readuntil(b"\r\n\r\n")).decode("latin-1").split("\r\n")
+            headers = dict(h.lower().split(": ", 1) for h in head[1:] if ": " in h)
+            if "content-length" not in headers:
+                raise ValueError(f"GET {path}: no content-length ({head[0]})")
+            body = await reader.readexactly(int(headers["content-length"]))
+        except (asyncio.IncompleteReadError, asyncio.LimitOverrunError) as e:
+            await self.close()
+            raise ValueError(f"GET {path}: the connection broke ({e!r})") from None
+        if not head[0].startswith("HTTP/1.1 200 "):
+            raise ValueError(f"GET {path}: {head[0]}")
+        if headers.get("connection") == "close":
+            await self.close()
+        return body
+
+    async def close(self) -> None:
+        if self.conn is not None:
+            self.conn[1].close()
+            self.conn = None
+
+
 async def load_for(
-    base: str, clients: int, streams: int, seconds: float
+    base: str, clients: int, streams: int, seconds: float, client: str = "raw"
 ) -> tuple[dict[str, list[float]], int, list[int]]:
     """`clients` GET loops and `streams` open `GET /api/stream` readers for `seconds`: latencies (ms) per
     endpoint, the number of failed requests or streams, and the events each stream received."""
     out: dict[str, list[float]] = {e: [] for e in ENDPOINTS}
     errors, events = [0], [0] * streams
     deadline = time.perf_counter() + seconds
+
+    async def raw_client(k: int) -> None:
+        conn, i = RawClient(base), k
+        try:
+            while time.perf_counter() < deadline:
+                path, i = ENDPOINTS[i % len(ENDPOINTS)], i + 1
+                t0 = time.perf_counter()
+                try:
+                    body = await conn.get(path)
+                except (OSError, ValueError) as e:
+                    errors[0] += 1
+                    print(f"  error: {e}", file=sys.stderr)
+                    continue
+                out[path].append((time.perf_counter() - t0) * 1000)
+                if i % 50 == 0:
+                    json.loads(body)  # now and then: the body is whole JSON (each time would load the client)
+        finally:
+            await conn.close()
 
     async def loop_client(k: int) -> None:
         async with httpx.AsyncClient(base_url=base, timeout=60) as client:
@@ -171,8 +246,56 @@ async def load_for(
             except httpx.HTTPError:
                 errors[0] += 1
 
-    await asyncio.gather(*(loop_client(k) for k in range(clients)), *(stream_client(k) for k in range(streams)))
+    loops = raw_client if client == "raw" else loop_client
+    await asyncio.gather(*(loops(k) for k in range(clients)), *(stream_client(k) for k in range(streams)))
     return out, errors[0], events
+
+
+def rollout_rate(c: httpx.Client, checkpoint: dict[str, str], seconds: float) -> dict[str, object]:
+    """Roll out `checkpoint` in the scene and read its step count each second for `seconds`: steps/s
+    overall and the slowest and fastest one-second windows, against the control rate."""
+    loaded = c.post("/api/scene/load_rollout", json={**checkpoint, "play": True}).raise_for_status().json()
+    time.sleep(2.0)  # past the first steps (torch's first forward passes)
+    samples = []
+    start = time.perf_counter()
+    while True:
+        now = time.perf_counter()
+        samples.append((now, c.get("/api/scene/state").raise_for_status().json()["rollout"]["step"]))
+        if now - start >= seconds:
+            break
+        time.sleep(1.0)
+    c.post("/api/scene/rollout/close", json={}).raise_for_status()
+    windows = [(s1 - s0) / (t1 - t0) for (t0, s0), (t1, s1) in zip(samples, samples[1:], strict=False)]
+    (t0, s0), (t1, s1) = samples[0], samples[-1]
+    return {
+        "checkpoint": checkpoint["checkpoint"],
+        "control_rate": loaded["rollout"]["control_freq"],
+        "steps": s1 - s0,
+        "seconds": round(t1 - t0, 2),
+        "steps_per_s": round((s1 - s0) / (t1 - t0), 1),
+        "slowest_1s": round(min(windows), 1),
+        "fastest_1s": round(max(windows), 1),
+    }
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of process `pid` (its threads included) from /proc."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime, stime (fields 14 and 15)
+
+
+def idle_cpu(c: httpx.Client, pid: int, seconds: float) -> dict[str, float]:
+    """The server's CPU, as a share of one core, over `seconds` with the scene paused and nothing open
+    (this client's one connection closed during the window)."""
+    c.post("/api/scene/pause", json={}).raise_for_status()
+    assert c.get("/api/scene/state").json()["playing"] is False
+    c.close()
+    time.sleep(3.0)  # the last stream's and viser client's goodbyes
+    c0, t0 = cpu_seconds(pid), time.perf_counter()
+    time.sleep(seconds)
+    cpu, wall = cpu_seconds(pid) - c0, time.perf_counter() - t0
+    return {"seconds": round(wall, 1), "cpu_s": round(cpu, 2), "core_percent": round(100 * cpu / wall, 2)}
 
 
 def percentiles(values: list[float]) -> tuple[float, float]:
@@ -193,12 +316,30 @@ def main() -> None:
     ap.add_argument(
         "--duration", type=float, help="instead of --requests: --clients GET loops (and --streams) for this long"
     )
+    ap.add_argument(
+        "--client", choices=("raw", "httpx"), default="raw", help="with --duration: what the request loops use"
+    )
+    ap.add_argument("--rollout-seconds", type=float, help="then: roll out --checkpoint and count its steps/s")
+    ap.add_argument(
+        "--checkpoint",
+        default=json.dumps(DEMO_ROLLOUT),
+        help="the rollout: a JSON body of POST /api/scene/load_rollout (default: the demo policy)",
+    )
+    ap.add_argument("--idle-seconds", type=float, help="last: the server's CPU, scene paused, nothing connected")
+    ap.add_argument("--server-pid", type=int, help="with --url: the server's pid (for --idle-seconds)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     if args.url and not is_loopback(urlparse(args.url).hostname or ""):
         raise SystemExit("the benchmark only talks to a studio on loopback")
+    if args.idle_seconds and args.url and not args.server_pid:
+        raise SystemExit("--idle-seconds with --url needs --server-pid (the server's CPU is read from /proc)")
+    checkpoint = json.loads(args.checkpoint)
 
-    with studio_server(args) as base, background(args.train_cmd), httpx.Client(base_url=base, timeout=60) as c:
+    with (
+        studio_server(args) as (base, pid),
+        background(args.train_cmd),
+        httpx.Client(base_url=base, timeout=60) as c,
+    ):
         viser_port = c.get("/api/health").json()["viser_port"]
         loaded = c.post("/api/scene/load_clip", json={"path": args.clip}).raise_for_status().json()
         c.post("/api/scene/configure", json={"speed": args.speed, "loop": True}).raise_for_status()
@@ -207,10 +348,15 @@ def main() -> None:
         single = asyncio.run(api_latency(base, 1, 200))  # service time, without queueing
         errors, events = 0, []
         if args.duration:
-            latency, errors, events = asyncio.run(load_for(base, args.clients, args.streams, args.duration))
+            latency, errors, events = asyncio.run(
+                load_for(base, args.clients, args.streams, args.duration, args.client)
+            )
         else:
             latency = asyncio.run(api_latency(base, args.clients, args.requests))
-        c.post("/api/scene/pause", json={})
+        rollout = rollout_rate(c, checkpoint, args.rollout_seconds) if args.rollout_seconds else None
+        idle = idle_cpu(c, pid, args.idle_seconds) if args.idle_seconds else None
+        if not idle:
+            c.post("/api/scene/pause", json={})
 
     server_fps = updates / seconds
     target = min(loaded["fps"] * args.speed, 60.0)
@@ -231,7 +377,10 @@ def main() -> None:
         "per_endpoint_ms": {k: [round(x, 1) for x in percentiles(v)] for k, v in latency.items()},
     }
     if args.duration:
-        result.update(duration_s=args.duration, streams=args.streams, errors=errors, stream_events=events)
+        result.update(
+            duration_s=args.duration, streams=args.streams, errors=errors, stream_events=events, client=args.client
+        )
+    result.update(rollout=rollout, idle=idle)
     if args.json:
         print(json.dumps(result))
         return
@@ -243,9 +392,21 @@ def main() -> None:
     )
     if args.duration:
         print(f"  for {args.duration:g} s with {args.streams} streams open: {errors} errors, stream events {events}")
+        print(f"  (request loops: {args.client} HTTP/1.1 client)")
     print(f"  API, one client: p50 {result['api_1client_p50_ms']} ms")
     for path, (p50, p99) in result["per_endpoint_ms"].items():
         print(f"    {path:<20} p50 {p50:7.1f} ms  p99 {p99:7.1f} ms")
+    if rollout:
+        print(
+            f"  rollout of {rollout['checkpoint']}: {rollout['steps_per_s']} steps/s over {rollout['seconds']} s "
+            f"(control rate {rollout['control_rate']:g}/s; 1-s windows {rollout['slowest_1s']}"
+            f"-{rollout['fastest_1s']})"
+        )
+    if idle:
+        print(
+            f"  idle (scene paused, no stream, no viser client): server CPU {idle['core_percent']}% of a core "
+            f"({idle['cpu_s']} s in {idle['seconds']} s)"
+        )
     if args.train_cmd:
         print(f"  while running: {args.train_cmd}")
 

@@ -185,6 +185,13 @@ class Library:
         """Every clip: its header facts and the character guessed for it."""
         return self._listing("motions", self._scan_motions)
 
+    def motions_listed(self) -> list[dict[str, Any]] | None:
+        """`motions()` when a listing is memoised (a stale one is re-scanned in the background), else
+        None: for a caller on the event loop, which must not scan."""
+        with self._lists_lock:
+            listed = "motions" in self._lists
+        return self.motions() if listed else None
+
     def motion_info(self, path: Path) -> dict[str, Any]:
         """One clip's header facts (cached), or its `error`."""
         return self._cache.get(path, _motion_info)

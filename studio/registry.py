@@ -110,6 +110,7 @@ class Registry:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()  # one writer at a time inside this process
+        self._writes = 0  # grows with every write through this registry: what a cached read checks
         with self._connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
             db.executescript(_SCHEMA)
@@ -117,6 +118,23 @@ class Registry:
             for name, decl in _ADDED_COLUMNS:
                 if name not in have:
                     db.execute(f"ALTER TABLE runs ADD COLUMN {name} {decl}")
+
+    @property
+    def writes(self) -> int:
+        """How many writes this registry has made: a cache of a read is current while it has not grown
+        (the run manager, this process's, is the only writer)."""
+        return self._writes
+
+    @contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        """A connection for a write, one writer at a time; `writes` grows once it has committed (or
+        failed: a reader then reads again, which is never wrong)."""
+        with self._lock:
+            try:
+                with self._connect() as db:
+                    yield db
+            finally:
+                self._writes += 1
 
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:
@@ -139,7 +157,7 @@ class Registry:
     ) -> Run:
         """Insert a queued run; its out_dir comes from its new id, in the same transaction, so no
         reader (the run manager's thread) ever sees a queued run without its folder."""
-        with self._lock, self._connect() as db:
+        with self._write() as db:
             cur = db.execute(
                 "INSERT INTO runs (name, config, status, created_at, out_dir, executor, sweep_id)"
                 " VALUES (?, ?, ?, ?, '', ?, ?)",
@@ -161,7 +179,7 @@ class Registry:
                 value = value.value
             cols.append(f"{key} = ?")
             vals.append(value)
-        with self._lock, self._connect() as db:
+        with self._write() as db:
             db.execute(f"UPDATE runs SET {', '.join(cols)} WHERE id = ?", (*vals, run_id))
         return self.get(run_id)
 
@@ -185,12 +203,12 @@ class Registry:
         return [_row_to_run(r) for r in rows]
 
     def delete(self, run_id: int) -> None:
-        with self._lock, self._connect() as db:
+        with self._write() as db:
             db.execute("DELETE FROM runs WHERE id = ?", (run_id,))
 
     def create_sweep(self, name: str, spec: dict[str, Any]) -> int:
         """A new sweep (a named group of runs); its runs name it with `sweep_id`."""
-        with self._lock, self._connect() as db:
+        with self._write() as db:
             cur = db.execute(
                 "INSERT INTO sweeps (name, spec, created_at) VALUES (?, ?, ?)", (name, json.dumps(spec), time.time())
             )

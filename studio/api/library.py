@@ -21,7 +21,7 @@ router = APIRouter(tags=["library"], route_class=OneLineErrors)
 
 
 @router.get("/health")
-def health(request: Request) -> dict[str, Any]:
+async def health(request: Request) -> dict[str, Any]:  # settings only: no worker thread needed
     """Liveness, the viser port the page embeds, and where the studio looks for files."""
     studio = studio_of(request)
     s = studio.settings
@@ -37,11 +37,28 @@ def health(request: Request) -> dict[str, Any]:
 
 
 @router.get("/motions", response_class=JSONResponse)
-def motions(request: Request) -> JSONResponse:
+async def motions(request: Request) -> Response:
     """Every clip in the data folders' `motions/` and in uploads: fps, loop mode, frames, duration,
     frame width and the character guessed from it."""
-    # Plain JSON data already: JSONResponse skips FastAPI's per-item encoder (slow for 300 clips).
-    return JSONResponse(studio_of(request).library.motions())
+    library = studio_of(request).library
+    # The memoised listing is served from the event loop (its JSON encoded once per listing); only the
+    # first scan goes to a worker thread. Plain JSON data already: no FastAPI per-item encoder.
+    listed = library.motions_listed()
+    if listed is None:
+        listed = await run_in_threadpool(library.motions)
+    return Response(_encoded(listed), media_type="application/json")
+
+
+_last_encoded: tuple[list, bytes] | None = None
+
+
+def _encoded(listing: list[dict[str, Any]]) -> bytes:
+    """`listing` as JSON bytes, encoded again only when the library made a new listing (a new list)."""
+    global _last_encoded
+    last = _last_encoded
+    if last is None or last[0] is not listing:
+        last = _last_encoded = (listing, JSONResponse(listing).body)
+    return last[1]
 
 
 @router.get("/characters")

@@ -8,11 +8,13 @@ runs folder's), `data/...` (each data folder in turn), or absolute inside the al
 from __future__ import annotations
 
 import json
+import threading
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path, PurePosixPath
 from typing import Any
 
+import anyio.to_thread
 from fastapi import APIRouter, Header, Query, Request, Response
 from fastapi.responses import StreamingResponse
 from pydantic import Field
@@ -22,7 +24,7 @@ from mimickit.run_folder import RunFolder
 from studio.api import studio_of
 from studio.api.bodies import OneLineErrors, StrictBody
 from studio.metrics import follow_rows, read_rows
-from studio.registry import Run
+from studio.registry import Registry, Run
 from studio.run_summary import run_summary
 from studio.security import PathError, confine
 from studio.settings import Settings
@@ -64,14 +66,64 @@ def run_json(run: Run) -> dict[str, Any]:
     d = run.to_json()
     folder = RunFolder(run.out_dir) if run.out_dir else None
     d["checkpoint"] = str(folder.model_file) if folder and folder.model_file.is_file() else None
-    d["duration_s"] = ((run.ended_at or time.time()) - run.started_at) if run.started_at else None
+    d["duration_s"] = _duration(run, time.time())
     d["summary"] = run_summary(run.out_dir) if folder else None
     return d
 
 
+RUN_LIST_TTL_S = 0.5  # how long a run list is served again while the registry has not changed
+
+
+class RunList:
+    """The run list, read (SQLite, each run folder's files) in a worker thread and served again from
+    the event loop while no registry write happened and it is under `RUN_LIST_TTL_S` old: 40 clients
+    asking several times a second cost one read, not one worker thread each (whose hand-offs, GIL
+    contention mostly, were most of the API's p99 under load). A run's own files (new metrics rows, a
+    checkpoint) show at most that late; a launch, stop or delete at once. `duration_s` is recomputed
+    on every answer."""
+
+    def __init__(self, registry: Registry) -> None:
+        self.registry = registry
+        self._cached: tuple[int, float, list[tuple[Run, dict[str, Any]]]] | None = None
+        self._lock = threading.Lock()
+
+    def fresh(self) -> list[dict[str, Any]] | None:
+        """The cached list when it is still current (cheap: for the event loop), else None."""
+        cached = self._cached
+        if cached is None or cached[0] != self.registry.writes or time.monotonic() - cached[1] > RUN_LIST_TTL_S:
+            return None
+        now = time.time()
+        return [{**d, "duration_s": _duration(run, now)} for run, d in cached[2]]
+
+    def read(self) -> list[dict[str, Any]]:
+        """Read the list again (blocking: a worker thread's job) and cache it."""
+        with self._lock:  # concurrent misses read once: the later ones find the fresh list
+            hit = self.fresh()
+            if hit is not None:
+                return hit
+            writes, at = self.registry.writes, time.monotonic()  # before the read: a write during it is seen
+            rows = [(run, run_json(run)) for run in self.registry.list()]
+            self._cached = (writes, at, rows)
+            return [d for _, d in rows]
+
+
+def run_list_of(request: Request) -> RunList:
+    """The app's one `RunList`, made on first use (on the event loop, so no race)."""
+    state = request.app.state
+    if getattr(state, "run_list", None) is None:
+        state.run_list = RunList(studio_of(request).registry)
+    return state.run_list
+
+
+def _duration(run: Run, now: float) -> float | None:
+    return ((run.ended_at or now) - run.started_at) if run.started_at else None
+
+
 @router.get("")
-def list_runs(request: Request) -> list[dict[str, Any]]:
-    return [run_json(r) for r in studio_of(request).registry.list()]
+async def list_runs(request: Request) -> list[dict[str, Any]]:
+    runs = run_list_of(request)
+    rows = runs.fresh()
+    return rows if rows is not None else await anyio.to_thread.run_sync(runs.read)
 
 
 def resolve_motion_file(path: str, settings: Settings) -> Path:
