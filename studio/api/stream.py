@@ -150,7 +150,8 @@ async def stream(request: Request, sub: Annotated[Subscription, Depends()]) -> A
                     yield ServerSentEvent(event="scene", data=scene)
                     sent = True
                 if rollout is not None:
-                    rows = await anyio.to_thread.run_sync(rollout.read, studio.rollout)
+                    rp = studio.rollout  # no rollout loaded: nothing to read, no worker thread (10 a second)
+                    rows = rollout.read(None) if rp is None else await anyio.to_thread.run_sync(rollout.read, rp)
                     if rows is not None:
                         yield ServerSentEvent(event="rollout", data=rows)
                         sent = True
