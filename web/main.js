@@ -5,6 +5,7 @@ import { $, api, withToken } from "./api.js";
 import { fillFitTargets, initCheckpoints, refreshCheckpoints } from "./checkpoints.js";
 import { initCompare } from "./compare.js";
 import { initCurves } from "./curves.js";
+import { evalCheckpointsChanged, fillEvalForm, initEvals, renderEvals } from "./evals.js";
 import { initKeys } from "./keys.js";
 import { initLibrary, loadLibrary, onLibraryLoaded } from "./library.js";
 import { applyState, initPlayer, rolloutView } from "./player.js";
@@ -46,7 +47,8 @@ const stream = new StudioStream({
   handlers: {
     scene: (s) => applyState(s),
     rollout: (h) => rolloutView.addRows(h),
-    runs: (runs) => renderRuns(runs),
+    runs: (runs) => { renderRuns(runs); evalCheckpointsChanged(runs); },
+    evals: (jobs) => renderEvals(jobs),
     videos: (jobs) => renderVideos(jobs),
     metrics: (m) => addMetrics(m),
     log: (l) => addLog(l),
@@ -71,13 +73,14 @@ const stream = new StudioStream({
   },
 });
 
-onLibraryLoaded((library) => { fillLaunchForm(library); fillFitTargets(library); });
+onLibraryLoaded((library) => { fillLaunchForm(library); fillFitTargets(library); fillEvalForm(library); });
 initLibrary();
 initPlayer();
 initCurves();
 initCompare();
 initCheckpoints();
 initRuns(stream);
+initEvals();
 initVideo();
 initKeys();
 // A clicked button must not keep the focus: Enter would press it again instead of play/pause.
