@@ -4,6 +4,7 @@ import { $, api, el } from "./api.js";
 import { refreshCheckpoints, inspectCheckpoint } from "./checkpoints.js";
 import { addRows, clearCurves, setDiverged } from "./curves.js";
 import { compareSelection, showCompare } from "./compare.js";
+import { startEval } from "./evals.js";
 import { loadRollout } from "./player.js";
 
 let stream = null;
@@ -154,6 +155,7 @@ function buildRunNode(run) {
       act("Again", (r) => runAction(r, "again")),
       act("Rollout", (r) => loadRollout({ run_id: r.id })),
       act("Inspect", (r) => inspectCheckpoint(r.checkpoint)),
+      act("Evaluate", (r) => startEval({ run_id: r.id })),
       act("Delete", (r) => deleteRun(r)),
       act("Compare sweep", (r) => compareSweep(r.sweep_id))));
   return entry;
@@ -189,6 +191,8 @@ function updateRunNode({ run, node, fields: f }) {
   f.Again.disabled = !(s.seed !== null && s.seed !== undefined);
   f.Rollout.disabled = !run.checkpoint;
   f.Inspect.disabled = !run.checkpoint;
+  f.Evaluate.disabled = !run.checkpoint;
+  f.Evaluate.title = "mimickit eval of this run's model.pt on its clip or dataset (the Evals panel)";
   f.Delete.disabled = active;
   set(f.sweep, run.sweep_id ? `sweep #${run.sweep_id}` : "");
   f.sweep.parentNode.hidden = !run.sweep_id;

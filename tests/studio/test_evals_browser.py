@@ -11,7 +11,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.studio.conftest import StudioProcess, wait_for
+from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
 
@@ -21,6 +21,8 @@ pytestmark = [
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
 ]
 SHIPPED = "data/models/deepmimic_humanoid_demo_model.pt"
+DEMO_ARGS = "args/deepmimic_humanoid_demo_ppo_args.txt"
+RUN_TIMEOUT_S = 300.0  # a real two-iteration training on a shared 2-core CPU
 CLIP = "data/motions/humanoid_demo_squat.pkl"
 # The scene's software WebGL shares the page's main thread: on a loaded machine an action can wait long.
 ACTION_TIMEOUT_MS = 90_000
@@ -111,3 +113,36 @@ def test_an_eval_from_the_page_shows_its_table_and_a_row_rolls_out(page, server:
         assert server.get(f"/api/evals/{gone_id}").status_code == 404
     assert page.locator("#eval-empty").is_visible()
     assert page.errors == []
+
+
+@pytest.fixture(scope="module")
+def real_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
+    s = StudioProcess(tmp_path_factory.mktemp("evals_browser_real_runs"), None, trainer=REAL_TRAINER)
+    yield s
+    s.stop()
+
+
+def test_a_trained_runs_evaluate_button_evaluates_its_checkpoint(page, real_server: StudioProcess) -> None:
+    """A real `mimickit train` run (the demo config, 4 envs, two iterations), then its row's Evaluate button: a
+    real `mimickit eval` of that run's model.pt, whose table appears in the Evals panel."""
+    body = {"arg_file": DEMO_ARGS, "name": "eval-me", "num_envs": 4, "max_samples": 256}
+    run = real_server.post("/api/runs", body).json()
+    wait_for(lambda: real_server.get(f"/api/runs/{run['id']}").json()["status"] == "finished", RUN_TIMEOUT_S, "the run")
+    tab = page.context.browser.new_page(viewport={"width": 1500, "height": 900})  # the module's Chromium
+    tab.set_default_timeout(ACTION_TIMEOUT_MS)
+    errors: list[str] = []
+    tab.on("pageerror", lambda e: errors.append(str(e)))
+    tab.goto(real_server.url)
+    button = tab.locator(f'[data-run-id="{run["id"]}"] [data-action="evaluate"]')
+    wait_for(lambda: button.count() == 1 and button.is_enabled(), 60, "the run's Evaluate button")
+    button.click()
+    job = tab.locator("#eval-list .item").first
+    job.wait_for()
+    job_id = int(job.get_attribute("data-eval-id"))
+    assert real_server.get(f"/api/evals/{job_id}").json()["checkpoint"].endswith(f"{run['id']:04d}-eval-me/model.pt")
+    status = job.locator("[data-field=status]")
+    wait_for(lambda: status.inner_text() in ("finished", "failed"), EVAL_TIMEOUT_S, "the run's eval to end")
+    assert status.inner_text() == "finished", job.locator("[data-field=error]").inner_text()
+    wait_for(lambda: job.locator("table.evals tbody tr").count() >= 1, 30, "the eval table")
+    assert errors == []
+    tab.close()
