@@ -86,7 +86,8 @@ def test_scene_events_follow_scene_commands(server: StudioProcess, events) -> No
     stream = events()
     assert stream.response.headers["content-type"].startswith("text/event-stream")
     name, hello = stream.next()
-    assert name == "hello" and len(hello["server"]) == 32 and hello["topics"] == ["evals", "rollout", "runs", "scene", "videos"]
+    assert name == "hello" and len(hello["server"]) == 32
+    assert hello["topics"] == ["evals", "rollout", "runs", "scene", "videos"]
     first = stream.until(lambda n, d: n == "scene", what="the scene at connect")
     assert first["mode"] == "clip" and first["clip"].endswith("humanoid_demo_squat.pkl")
 
