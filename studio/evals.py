@@ -15,12 +15,10 @@ Jobs live in memory (a restarted server starts with none); their folders stay.
 from __future__ import annotations
 
 import atexit
-import contextlib
 import json
 import os
 import queue
 import shutil
-import signal
 import subprocess
 import sys
 import threading
@@ -32,6 +30,7 @@ from typing import Any
 import yaml
 
 from mimickit.util.errors import MimicKitError
+from studio.job_process import failure_line, kill_group
 from studio.library import one_line
 from studio.runs import child_env
 from studio.settings import Settings
@@ -140,7 +139,7 @@ class EvalJobs:
             running, proc = job.status == "running", self._proc
             job.status, job.error, job.ended_at = "stopped", None, time.time()
         if running and proc is not None:
-            _kill_group(proc)
+            kill_group(proc)
         return True
 
     def remove(self, job_id: int) -> bool:
@@ -158,7 +157,7 @@ class EvalJobs:
         self._closed = True
         proc = self._proc
         if proc is not None:
-            _kill_group(proc)
+            kill_group(proc)
         self._queue.put(None)
         self._thread.join(timeout=5)
 
@@ -208,7 +207,7 @@ class EvalJobs:
             if job.status == "stopped":
                 return
         if code != 0:
-            self._end(job, "failed", error=error_line(err_path, code))
+            self._end(job, "failed", error=failure_line("mimickit eval", err_path, code))
             return
         try:
             report = json.loads(out_path.read_text())
@@ -225,24 +224,6 @@ class EvalJobs:
                 return
             job.status, job.error, job.ended_at = status, error, time.time()
             job.rows, job.mean = report.get("rows", job.rows), report.get("mean", job.mean)
-
-
-def _kill_group(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-
-
-def error_line(console: Path, code: int) -> str:
-    """`mimickit`'s last `error: ...` line, else the last line printed, else the exit code."""
-    try:
-        lines = [line.strip() for line in console.read_text(errors="replace").splitlines() if line.strip()]
-    except OSError:
-        lines = []
-    errors = [line for line in lines if line.startswith("error:")]
-    last = errors[-1] if errors else lines[-1] if lines else None
-    how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
-    return one_line(f"mimickit eval failed ({how}): {last}" if last else f"mimickit eval failed ({how})")
 
 
 def clip_env_config(env_config: Path, clip: Path, out: Path) -> Path:

@@ -14,10 +14,8 @@ Jobs live in memory (a restarted server starts with none); their folders stay.
 from __future__ import annotations
 
 import atexit
-import contextlib
 import os
 import queue
-import signal
 import subprocess
 import sys
 import threading
@@ -26,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from studio.job_process import failure_line, kill_group
 from studio.library import one_line
 from studio.runs import child_env
 from studio.settings import Settings
@@ -205,7 +204,7 @@ class VideoJobs:
         if code is None:
             self._end(job, "failed", f"mimickit video took longer than {self.time_limit_s:g} s and was stopped")
         elif code != 0:
-            self._end(job, "failed", error_line(console, code))
+            self._end(job, "failed", failure_line("mimickit video", console, code))
         elif not job.file.is_file():
             self._end(job, "failed", f"mimickit video exited without writing {VIDEO_FILE}")
         else:
@@ -215,21 +214,3 @@ class VideoJobs:
     def _end(self, job: VideoJob, status: str, error: str | None = None) -> None:
         with self._lock:
             job.status, job.error, job.ended_at = status, error, time.time()
-
-
-def kill_group(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-
-
-def error_line(console: Path, code: int) -> str:
-    """`mimickit`'s last `error: ...` line, else the last line printed, else the exit code."""
-    try:
-        lines = [line.strip() for line in console.read_text(errors="replace").splitlines() if line.strip()]
-    except OSError:
-        lines = []
-    errors = [line for line in lines if line.startswith("error:")]
-    last = errors[-1] if errors else lines[-1] if lines else None
-    how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
-    return one_line(f"mimickit video failed ({how}): {last}" if last else f"mimickit video failed ({how})")
