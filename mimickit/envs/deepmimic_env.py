@@ -120,6 +120,21 @@ class DeepMimicEnv(CharEnv):
         t = self._time_buf + self._motion_time_offsets
         return t if env_ids is None else t.index_select(0, env_ids)
 
+    def start_next_resets_at(self, motion_ids: torch.Tensor, times: torch.Tensor) -> None:
+        """The next resets start from these clip states (motion ids [n], times [n]), before any sampled
+        one: a viewer starts two envs from one state (the studio's A/B rollout). Times are clamped to
+        each clip's length."""
+        ids = motion_ids.to(device=self.device, dtype=torch.long).reshape(-1)
+        if len(ids) and (int(ids.min()) < 0 or int(ids.max()) >= self._motion_lib.num_motions()):
+            n = self._motion_lib.num_motions()
+            raise MimicKitError(f"motion ids {ids.tolist()} outside this env's {n} clips")
+        length = self._motion_lib.get_motion_length(ids)
+        t = torch.minimum(times.to(self.device, torch.float32).reshape(-1), length)
+        frames = self._pack(self._eval_clip([(ids, t, self._ref_steps)])[0])
+        self._pool_ids = torch.cat([ids, self._pool_ids])
+        self._pool_times = torch.cat([t, self._pool_times])
+        self._pool_frames = torch.cat([frames, self._pool_frames])
+
     def get_ref_state(self) -> dict[str, torch.Tensor]:
         """The reference at the current motion time: root_pos [N,3], root_rot [N,4], joint_rot [N,J-1,4],
         dof_pos [N,D], body_pos [N,J,3], body_rot [N,J,4], velocities."""
