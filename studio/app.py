@@ -42,6 +42,7 @@ from studio.player import Player
 from studio.player_gui import SceneKeys
 from studio.registry import Registry
 from studio.rollout import Rollout, RolloutPlayer, RolloutSource
+from studio.rollout_pair import RolloutPair
 from studio.runs import RunError, RunManager
 from studio.scene import StudioScene
 from studio.scene_proxy import VISER_HOST, add_scene_proxy
@@ -93,16 +94,25 @@ class Studio:
 
         return self.scene_thread.call(run)
 
-    def load_rollout(self, source: RolloutSource, *, play: bool = True) -> dict[str, Any]:
+    def load_rollout(
+        self, source: RolloutSource, *, play: bool = True, partner: RolloutSource | None = None
+    ) -> dict[str, Any]:
         """Build the rollout (MimicKitError when the checkpoint does not fit) and show it instead of
-        the clip or the previous rollout; its state."""
-        rollout = Rollout(source)  # slow (env, agent, checkpoint): off the scene thread, then handed over
+        the clip or the previous rollout; its state. `partner`: B of an A/B rollout (`source` is A);
+        MimicKitError when the two cannot pair, before the rollout shown now ends."""
+        built = _build_rollouts(source, partner)  # slow (envs, agents, checkpoints): off the scene thread
+        rollout = built[0]
+        try:
+            pair = RolloutPair(*built) if partner is not None else None  # its first start: before the hand-over
+        except BaseException:
+            _close_all(built)
+            raise
 
         def install() -> dict[str, Any]:
             self._end_rollout()
             if self.player:
                 self.player.pause()
-            self.rollout = RolloutPlayer(rollout, self.scene, self.scene_thread, play=play)
+            self.rollout = RolloutPlayer(rollout, self.scene, self.scene_thread, play=play, pair=pair)
             self.scene_thread.drive(self.rollout)
             return self.rollout.snapshot()
 
@@ -110,7 +120,7 @@ class Studio:
             return self.scene_thread.call(install)
         except BaseException:
             if self.rollout is None or self.rollout.rollout is not rollout:
-                rollout.close()  # never shown: nothing else will close it
+                _close_all(built)  # never shown: nothing else will close them
             raise
 
     def end_rollout(self) -> None:
@@ -134,6 +144,37 @@ class Studio:
         if self.viser_server:
             with contextlib.redirect_stdout(io.StringIO()):  # viser prints "Server stopped"
                 self.viser_server.stop()
+
+
+def _build_rollouts(source: RolloutSource, partner: RolloutSource | None) -> list[Rollout]:
+    """A `Rollout` of `source`, and of `partner` when given; those built are closed when one fails."""
+    sides = [("A", source), ("B", partner)] if partner is not None else [("", source)]
+    built: list[Rollout] = []
+    try:
+        for side, s in sides:
+            built.append(_build_side(side, s))
+    except BaseException:
+        _close_all(built)
+        raise
+    return built
+
+
+def _build_side(side: str, source: RolloutSource) -> Rollout:
+    """`Rollout(source)`; an A/B side's error (`side` "A" or "B") says which side, still in one line."""
+    try:
+        return Rollout(source)
+    except Exception as e:
+        if not side:
+            raise
+        detail = (str(e).strip().splitlines() or [""])[0]
+        if not isinstance(e, MimicKitError):  # a broken config: as `roll_out` says it, with B's checkpoint
+            detail = f"cannot roll out {source.checkpoint}: {type(e).__name__}: {detail}"
+        raise MimicKitError(f"{side}: {detail}") from None
+
+
+def _close_all(rollouts: list[Rollout]) -> None:
+    for r in rollouts:
+        r.close()
 
 
 def create_studio(settings: Settings) -> Studio:

@@ -16,16 +16,18 @@ the REST scene commands and the keys drive whichever is loaded: the timeline is 
 seeking or stepping back shows a recorded frame (the simulation waits); play goes on from the frame
 shown, through the recorded history to the live end, then simulating; step at the live end simulates
 one more step. The state's reward, terms and episode figures are those of the frame shown (`latest`:
-the live end's).
+the live end's). An A/B rollout gives the player a `studio.rollout_pair.RolloutPair`: B steps with A
+(frame i of both histories is one moment), is drawn in a lane behind A, and its figures of the same
+frame are the state's `b` and the history rows' `b`.
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -39,6 +41,9 @@ from studio.checkpoints import configs_beside
 from studio.playable import Playable, command
 from studio.scene import BODY_ERROR_SCALE_M, BODY_ERROR_STOPS, SUPPORT_WINDOW_S, StudioScene
 from studio.scene_thread import SceneThread
+
+if TYPE_CHECKING:
+    from studio.rollout_pair import RolloutPair  # it builds on Rollout
 
 HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
 RELOAD_POLL_S = 1.0  # how often the checkpoint's mtime is checked
@@ -124,6 +129,7 @@ class Frame:
     done: int = 0  # DoneFlags of the step that ended an episode (1 fail, 2 success, 3 time)
     low_z: float | None = None  # lowest body origin of the followed figure (see RolloutPlayer._height)
     body_error: np.ndarray | None = None  # [J] metres, each body's tracking error (Rollout.body_names)
+    waiting: bool = False  # an ended episode's last pose, held while an A/B partner still runs
 
 
 @dataclass
@@ -181,6 +187,7 @@ class Rollout:
         self.steps = 0
         self.episode = -1
         self.episodes: deque[EpisodeSummary] = deque(maxlen=100)
+        self.ended = 0  # the DoneFlags of an episode that ended without a reset (`step(auto_reset=False)`)
         self.reset()
 
     @property
@@ -194,10 +201,20 @@ class Rollout:
         self.episode += 1
         self.episode_step = 0
         self.episode_return = 0.0
+        self.ended = 0
         self._record(None, None, 0)
 
-    def step(self) -> Frame:
-        """One control step of the deterministic policy; an episode that ends is reset at once."""
+    def restart(self) -> None:
+        """Forget the recorded steps and episodes and start again from episode 0 (an A/B pair's first
+        start replaces the one each side recorded when it was built)."""
+        self.history.clear()
+        self.episodes.clear()
+        self.episode = -1
+        self.reset()
+
+    def step(self, auto_reset: bool = True) -> Frame:
+        """One control step of the deterministic policy; an episode that ends is reset at once, or with
+        `auto_reset` False left ended (`ended`: its done flag) until `reset`."""
         with torch.no_grad():
             action = self.agent.compute_action(self._obs, deterministic=True)
             obs, reward, done, info = self.env.step(action)
@@ -210,14 +227,25 @@ class Rollout:
         frame = self._record(r, terms, d)
         if d:
             self.episodes.append(EpisodeSummary(self.episode, self.episode_step, self.episode_return, d))
-            self.reset()
+            if auto_reset:
+                self.reset()
+            else:
+                self.ended = d
         else:
             self._obs = obs
         return frame
 
-    def reload_if_newer(self) -> bool:
-        """Load the checkpoint again when its file changed; True when new weights were loaded. A file
-        that no longer fits keeps the old weights and sets `error`."""
+    def hold(self) -> Frame:
+        """One control step of waiting after an ended episode: its last pose again, no reward (an A/B
+        partner still runs; both histories keep one frame per step)."""
+        self.steps += 1
+        frame = replace(self.history[-1], step=self.steps, reward=None, terms=None, waiting=True)
+        self.history.append(frame)
+        return frame
+
+    def reload_if_newer(self, reset: bool = True) -> bool:
+        """Load the checkpoint again when its file changed; True when new weights were loaded (and, with
+        `reset`, a new episode started). A file that no longer fits keeps the old weights and sets `error`."""
         try:
             st = self.source.checkpoint.stat()
         except OSError:
@@ -234,7 +262,8 @@ class Rollout:
         self.agent.eval()
         self.error = None
         self.reloads += 1
-        self.reset()
+        if reset:
+            self.reset()
         return True
 
     def pose(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
@@ -293,16 +322,27 @@ class RolloutPlayer(Playable):
     """A `Rollout` stepped by the scene thread `owner` and drawn in `scene` (None: not drawn, for tests)."""
 
     def __init__(
-        self, rollout: Rollout, scene: StudioScene | None, owner: SceneThread | None = None, *, play: bool = False
+        self,
+        rollout: Rollout,
+        scene: StudioScene | None,
+        owner: SceneThread | None = None,
+        *,
+        play: bool = False,
+        pair: RolloutPair | None = None,
     ) -> None:
+        """`pair`: an A/B rollout whose A is `rollout`; B is stepped in lockstep and drawn beside it."""
         super().__init__(owner)
+        if pair is not None and pair.a is not rollout:
+            raise ValueError("the A/B pair's A must be the rollout shown")
         self.rollout = rollout
+        self.pair = pair
         self.scene = scene
         self.state = RolloutState(playing=play)
         self._ground = np.inf  # the lowest `Frame.low_z` drawn so far (see _height)
         if scene is not None:
-            error_bodies = rollout.char_bodies if rollout.body_names else None  # coloured by their error
-            scene.show_rollout(rollout.model, rollout.ghost_bodies, error_bodies)
+            # B's character is drawn only by its body meshes (A's also by mjviser): all of them, always.
+            b = (pair.b.model, pair.b.ghost_bodies, pair.b.char_bodies) if pair is not None else None
+            scene.show_rollout(*_figure(rollout), partner=b)
         now = time.monotonic()
         self._next_t, self._next_poll = now, now + RELOAD_POLL_S
         self._draw()
@@ -331,7 +371,7 @@ class RolloutPlayer(Playable):
                 if i < len(hist) - 1:
                     self.state.view = i + 1
                 else:
-                    self.rollout.step()
+                    self._simulate()
                     self.state.view = None
             if self.state.view is not None and self.state.view >= len(hist) - 1:
                 self.state.view = None
@@ -360,19 +400,25 @@ class RolloutPlayer(Playable):
 
     @command
     def reset(self) -> None:
-        """Start a new episode now."""
-        self.rollout.reset()
+        """Start a new episode now (an A/B pair: both, from one clip state)."""
+        (self.pair or self.rollout).reset()
         self.state.view = None
         self._draw()
 
     @command
     def close(self) -> None:
         self.state.playing = False
-        self.rollout.close()
+        (self.pair or self.rollout).close()
+
+    @property
+    def sides(self) -> tuple[Rollout, ...]:
+        """The rollouts shown: A alone, or A and B."""
+        return self.pair.sides if self.pair is not None else (self.rollout,)
 
     def plays_from(self, folder: Path) -> bool:
-        """Whether the checkpoint rolled out lies in `folder` (a run folder about to go)."""
-        return self.rollout.source.checkpoint.resolve().is_relative_to(Path(folder).resolve())
+        """Whether a checkpoint rolled out lies in `folder` (a run folder about to go)."""
+        folder = Path(folder).resolve()
+        return any(r.source.checkpoint.resolve().is_relative_to(folder) for r in self.sides)
 
     # -- reading ------------------------------------------------------------------------------------
 
@@ -424,6 +470,9 @@ class RolloutPlayer(Playable):
                     "reward_terms": live_terms.terms if live_terms else {},
                 },
                 "episodes": [e.to_json() for e in list(r.episodes)[-10:]],
+                "waiting": shown.waiting,  # an A/B side's ended episode, held until the other ends
+                "b": _side_json(self.pair.b, i) if self.pair is not None else None,  # B at the same frame
+                "figures": self.scene.figures() if self.scene is not None else [],  # A/B: both, as drawn
                 "follow_height": s.height,
                 "reward_weights": r.reward_weights,
                 "history_seconds": len(r.history) * r.dt,
@@ -445,20 +494,31 @@ class RolloutPlayer(Playable):
 
     @command
     def history_rows(self, since_step: int = -1, limit: int = 5000) -> list[dict[str, Any]]:
-        """Recorded steps after `since_step` with their reward and terms (episode starts left out)."""
-        frames = [f for f in self.rollout.history if f.step > since_step and f.terms is not None]
+        """Recorded steps after `since_step` with their reward and terms (episode starts left out; an
+        A/B rollout: `b`, B's reward and terms of the same step, null where a side has none)."""
+        hist = self.rollout.history
+        b_hist = self.pair.b.history if self.pair is not None else None
+        keep = [
+            i
+            for i, f in enumerate(hist)
+            if f.step > since_step and (f.terms is not None or (b_hist is not None and b_hist[i].terms is not None))
+        ]
         dt = self.rollout.dt
-        return [
-            {
+        rows = []
+        for i in keep[-limit:]:
+            f = hist[i]
+            row = {
                 "step": f.step,
                 "time": f.step * dt,
                 "episode": f.episode,
                 "reward": f.reward,
-                "terms": f.terms,
+                "terms": f.terms or {},
                 "body_error": None if f.body_error is None else [round(float(e), 5) for e in f.body_error],
             }
-            for f in frames[-limit:]
-        ]
+            if b_hist is not None:
+                row["b"] = {"reward": b_hist[i].reward, "terms": b_hist[i].terms or {}}
+            rows.append(row)
+        return rows
 
     # -- internals ----------------------------------------------------------------------------------
 
@@ -484,17 +544,26 @@ class RolloutPlayer(Playable):
         root = xpos[r.root_body]
         # Following keeps the pair in view: the point halfway between the character and its ghost.
         centre = root if r.ghost_root is None else 0.5 * (root + xpos[r.ghost_root])
+        partner, partner_errors = None, None
+        if self.pair is not None:  # B's frame i is the same moment as A's (studio.rollout_pair)
+            b = self.pair.b
+            b_frame = b.history[i]
+            partner, partner_errors = b.pose(b_frame), b.body_error_colours(b_frame)
         if self.scene is not None:
-            self.scene.draw_bodies(xpos, xmat, centre, self.state.follow, self.state.height)
-            self.scene.colour_bodies(r.body_error_colours(frame), BODY_ERROR_SCALE_M)
+            self.scene.draw_bodies(xpos, xmat, centre, self.state.follow, self.state.height, partner)
+            self.scene.colour_bodies(r.body_error_colours(frame), BODY_ERROR_SCALE_M, partner_errors)
         self.state.root_pos = root.astype(float).tolist()
         self.state.updates += 1
         self._changed()
 
+    def _simulate(self) -> None:
+        """One simulated step: of the rollout, or of both sides of an A/B pair."""
+        (self.pair or self.rollout).step()
+
     def _advance(self) -> None:
         """One frame on: the next recorded one while history is shown, else one simulated step."""
         if self.state.view is None:
-            self.rollout.step()
+            self._simulate()
             return
         self.state.view += 1
         if self.state.view >= len(self.rollout.history) - 1:
@@ -526,10 +595,10 @@ class RolloutPlayer(Playable):
         if now >= self._next_poll:
             self._next_poll = now + RELOAD_POLL_S
             try:
-                if self.rollout.reload_if_newer():
+                if (self.pair or self.rollout).reload_if_newer():
                     self.state.view = None
                     self._draw()
-                elif self.rollout.error:
+                elif any(r.error for r in self.sides):
                     self._changed()
             except Exception as e:  # noqa: BLE001
                 self.rollout.error = f"reload failed: {e!r}"
@@ -544,3 +613,27 @@ class RolloutPlayer(Playable):
             self.rollout.error = f"simulation stopped: {e!r}"
             self._changed()
         self._next_t = max(self._next_t + period, now - period)
+
+
+def _figure(r: Rollout) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray | None]:
+    """What the scene draws of `r`: its model, ghost bodies, and the bodies coloured by their error."""
+    return r.model, r.ghost_bodies, r.char_bodies if r.body_names else None
+
+
+def _side_json(r: Rollout, i: int) -> dict[str, Any]:
+    """B of an A/B rollout at history frame `i`: its source and what the label and plots show."""
+    shown = r.history[min(i, len(r.history) - 1)]
+    return {
+        **r.source.to_json(),
+        "checkpoint_mtime": r.checkpoint_mtime,
+        "reloads": r.reloads,
+        "error": r.error,
+        "episode": shown.episode,
+        "episode_step": shown.episode_step,
+        "episode_return": shown.episode_return,
+        "reward": shown.reward,
+        "reward_terms": shown.terms or {},
+        "body_error": r.body_error_json(shown),
+        "waiting": shown.waiting,
+        "episodes": [e.to_json() for e in list(r.episodes)[-10:]],
+    }

@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import re
 import threading
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -43,6 +44,10 @@ GHOST_OPACITY = 0.38
 # A rollout's character and ghost stand side by side along x (the env's ref_char_offset): a front
 # view, aimed right of the pair so that viser's panel (top right) does not hide the ghost.
 ROLLOUT_CAMERA = {"position": (0.5, -3.4, 1.35), "look_at": (0.75, 0.0, 0.7)}
+# An A/B rollout: B's character and ghost in a second lane 3 m behind A's (+y), seen from higher up
+# at the front, so that B's row stands above A's in the picture instead of hidden behind it.
+PAIR_LANE = np.array([0.0, 3.0, 0.0])
+PAIR_CAMERA = {"position": (0.0, -3.3, 3.4), "look_at": (0.0, 1.5, 0.7)}
 CLIP_CAMERA = {"position": (2.2, -2.6, 1.5), "look_at": (0.0, 0.0, 0.8)}
 PATH_COLOR = (250, 176, 5)
 CONTACT_COLOR = (60, 220, 120)
@@ -126,6 +131,7 @@ class StudioScene:
         self._ghost: list[tuple[int, viser.MeshHandle]] = []  # (MuJoCo body id, its translucent mesh)
         self._error_meshes: list[tuple[int, viser.MeshHandle]] = []  # the character's bodies, by error
         self._error_colours: list[tuple[int, int, int] | None] = []  # the colour each was last sent
+        self._partner: _Partner | None = None  # B of an A/B rollout
         server.scene.set_up_direction("+z")
         server.scene.world_axes.visible = False
         self.world = server.scene.add_frame("/world", show_axes=False)
@@ -227,11 +233,18 @@ class StudioScene:
     # -- rollout: an env's own model, character and ghost ------------------------------------------
 
     def show_rollout(
-        self, model: mujoco.MjModel, ghost_bodies: np.ndarray, error_bodies: np.ndarray | None = None
+        self,
+        model: mujoco.MjModel,
+        ghost_bodies: np.ndarray,
+        error_bodies: np.ndarray | None = None,
+        *,
+        partner: tuple[mujoco.MjModel, np.ndarray, np.ndarray] | None = None,
     ) -> None:
         """Replace whatever is drawn by the env model `model`; bodies `ghost_bodies` are the reference.
         `error_bodies`, the character's bodies, are drawn one mesh each for `colour_bodies` to colour by
-        their tracking error (mjviser's batched meshes have one colour baked in per shared geometry)."""
+        their tracking error (mjviser's batched meshes have one colour baked in per shared geometry).
+        `partner`: B of an A/B rollout, (model, ghost bodies, character bodies), drawn in a lane behind,
+        each figure labelled."""
         error_bodies = np.zeros(0, dtype=np.int64) if error_bodies is None else np.asarray(error_bodies)
         with self._lock:
             self._clear_clip()
@@ -243,8 +256,19 @@ class StudioScene:
             self._ghost = self._body_meshes(model, ghost_bodies, "/ghost", GHOST_COLOR, GHOST_OPACITY)
             self._error_meshes = self._body_meshes(model, error_bodies, "/error_bodies", None, 1.0, shadows=True)
             self._error_colours = [None] * len(self._error_meshes)
-            if self._ghost:
+            if partner is not None:
+                self._partner = self._partner_figure(*partner)
+                self._set_camera(PAIR_CAMERA, clients=True)
+            elif self._ghost:
                 self._set_camera(ROLLOUT_CAMERA, clients=True)
+
+    def _partner_figure(self, model: mujoco.MjModel, ghost_bodies: np.ndarray, char_bodies: np.ndarray) -> _Partner:
+        """B's ghost and character, one mesh per body (B has no mjviser scene of its own), and a label
+        over each figure: "A" and "B"."""
+        ghost = self._body_meshes(model, ghost_bodies, "/b/ghost", GHOST_COLOR, GHOST_OPACITY)
+        bodies = self._body_meshes(model, np.asarray(char_bodies), "/b/bodies", None, 1.0, shadows=True)
+        labels = [self.server.scene.add_label(f"/b/label_{k}", k, font_screen_scale=1.4) for k in "AB"]
+        return _Partner(ghost, bodies, labels, [None] * len(bodies))
 
     def _body_meshes(
         self,
@@ -277,25 +301,38 @@ class StudioScene:
             out.append((int(b), handle))
         return out
 
-    def colour_bodies(self, errors: dict[int, float], scale_m: float = BODY_ERROR_SCALE_M) -> None:
+    def colour_bodies(
+        self, errors: dict[int, float], scale_m: float = BODY_ERROR_SCALE_M, partner: dict[int, float] | None = None
+    ) -> None:
         """Colour the character's bodies (those `show_rollout` got as `error_bodies`) by their error:
-        {MuJoCo body id: metres}; a colour is sent only when it changes."""
+        {MuJoCo body id: metres}, B's by `partner` in its model's ids; a colour is sent only when it changes."""
         with self._lock:
             if self.mode != "rollout":
                 return
             with self.server.atomic():
-                for i, (b, h) in enumerate(self._error_meshes):
-                    if b not in errors:
-                        continue
-                    rgb = error_colour(errors[b], scale_m)
-                    if rgb != self._error_colours[i]:
-                        h.color = rgb
-                        self._error_colours[i] = rgb
+                _colour(self._error_meshes, self._error_colours, errors, scale_m)
+                if self._partner is not None and partner:
+                    _colour(self._partner.bodies, self._partner.colours, partner, scale_m)
 
-    def body_colours(self) -> dict[int, tuple[int, int, int]]:
-        """The colour each of the character's error-coloured bodies shows: {MuJoCo body id: RGB 0-255}."""
+    def body_colours(self, partner: bool = False) -> dict[int, tuple[int, int, int]]:
+        """The colour each of the character's error-coloured bodies shows: {MuJoCo body id: RGB 0-255}
+        (`partner`: B's, in its model's ids)."""
         with self._lock:
-            return {b: tuple(int(c) for c in h.color) for b, h in self._error_meshes}  # type: ignore[misc]
+            meshes = (self._partner.bodies if self._partner else []) if partner else self._error_meshes
+            return {b: tuple(int(c) for c in h.color) for b, h in meshes}  # type: ignore[misc]
+
+    def figures(self) -> list[dict[str, object]]:
+        """The figures of an A/B rollout as the scene draws them (empty otherwise), for the state: each
+        one's label, where the label stands (viser's world, over the figure) and its meshes."""
+        with self._lock:
+            p = self._partner
+            if p is None:
+                return []
+            meshes = ((self._error_meshes, self._ghost), (p.bodies, p.ghost))
+            return [
+                {"label": k, "at": [round(float(v), 3) for v in h.position], "bodies": len(c), "ghost": len(g)}
+                for k, h, (c, g) in zip("AB", p.labels, meshes, strict=True)
+            ]
 
     def _set_camera(self, view: dict[str, tuple[float, float, float]], clients: bool) -> None:
         """The camera new browsers start with; `clients`: also move the cameras of connected ones."""
@@ -308,10 +345,17 @@ class StudioScene:
                     client.camera.look_at = view["look_at"]
 
     def draw_bodies(
-        self, xpos: np.ndarray, xmat: np.ndarray, root: np.ndarray, follow: bool, height: float = 0.0
+        self,
+        xpos: np.ndarray,
+        xmat: np.ndarray,
+        root: np.ndarray,
+        follow: bool,
+        height: float = 0.0,
+        partner: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """Pose every body of the rollout model from MuJoCo's xpos [nbody, 3] / xmat [nbody, 9];
-        `root` [3] is kept over the origin when following, and the ground `height` lowered to 0."""
+        `root` [3] is kept over the origin when following, and the ground `height` lowered to 0.
+        `partner`: B's xpos / xmat in its own model, drawn in its lane (PAIR_LANE)."""
         with self._lock:
             if self._mj is None or self.mode != "rollout":
                 return np.zeros(3)
@@ -323,12 +367,12 @@ class StudioScene:
             mats = xmat.reshape(-1, 3, 3)
             with self.server.atomic():
                 self.world.position = -offset
-                if self._ghost or self._error_meshes:
-                    wxyz = np.zeros((len(mats), 4))
-                    for b, h in self._ghost + self._error_meshes:
-                        mujoco.mju_mat2Quat(wxyz[b], mats[b].reshape(9))
-                        h.position = pos[b]
-                        h.wxyz = wxyz[b]
+                _place(self._ghost + self._error_meshes, pos, mats)
+                if self._partner is not None and partner is not None:
+                    b_pos = partner[0] + PAIR_LANE - offset
+                    _place(self._partner.ghost + self._partner.bodies, b_pos, partner[1].reshape(-1, 3, 3))
+                    for label, p in zip(self._partner.labels, (pos, b_pos), strict=True):
+                        label.position = _label_at(p)
                 self._mj.update_from_arrays(pos[None], mats[None])
             self.server.flush()  # see draw()
             return offset
@@ -347,8 +391,10 @@ class StudioScene:
         for _, h in self._ghost + self._error_meshes:
             h.remove()
         self._ghost, self._error_meshes, self._error_colours = [], [], []
+        self._partner = None
         self.server.scene.remove_by_name("/ghost")
         self.server.scene.remove_by_name("/error_bodies")
+        self.server.scene.remove_by_name("/b")
         self.server.scene.remove_by_name("/bodies")
         self.server.scene.remove_by_name("/fixed_bodies")
         self._mj = None
@@ -361,3 +407,45 @@ class StudioScene:
             if self.mode == "rollout":
                 self._clear_rollout()
                 self._set_camera(CLIP_CAMERA, clients=False)
+
+
+@dataclass
+class _Partner:
+    """B's figure in an A/B rollout: its ghost and character, one mesh per body, and the two labels."""
+
+    ghost: list[tuple[int, viser.MeshHandle]]
+    bodies: list[tuple[int, viser.MeshHandle]]
+    labels: list[viser.LabelHandle]
+    colours: list[tuple[int, int, int] | None] = field(default_factory=list)
+
+
+def _label_at(pos: np.ndarray) -> np.ndarray:
+    """Where a figure's label goes: over the middle of its bodies (`pos` [nbody, 3] of its model), 25 cm
+    above the highest."""
+    bodies = pos[1:]  # body 0 is MuJoCo's world
+    return np.array([bodies[:, 0].mean(), bodies[:, 1].mean(), bodies[:, 2].max() + 0.25])
+
+
+def _place(meshes: list[tuple[int, viser.MeshHandle]], pos: np.ndarray, mats: np.ndarray) -> None:
+    """Move each (MuJoCo body id, mesh) to its body's pose: pos [nbody, 3], mats [nbody, 3, 3]."""
+    wxyz = np.zeros(4)
+    for b, h in meshes:
+        mujoco.mju_mat2Quat(wxyz, mats[b].reshape(9))
+        h.position = pos[b]
+        h.wxyz = wxyz.copy()
+
+
+def _colour(
+    meshes: list[tuple[int, viser.MeshHandle]],
+    sent: list[tuple[int, int, int] | None],
+    errors: dict[int, float],
+    scale_m: float,
+) -> None:
+    """Set each mesh whose body is in `errors` to its error colour, when it differs from the one `sent`."""
+    for i, (b, h) in enumerate(meshes):
+        if b not in errors:
+            continue
+        rgb = error_colour(errors[b], scale_m)
+        if rgb != sent[i]:
+            h.color = rgb
+            sent[i] = rgb

@@ -22,7 +22,7 @@ from studio.clip_pose import default_pose, pose_clip
 from studio.library import characters_tried, no_character_line
 from studio.playable import Playable
 from studio.player import Player
-from studio.rollout import RolloutPlayer, source_for_checkpoint
+from studio.rollout import RolloutPlayer, RolloutSource, source_for_checkpoint
 from studio.runs import CHECKPOINT
 from studio.security import confine
 
@@ -46,6 +46,8 @@ class LoadRollout(StrictBody):
     agent_config: str | None = Field(None, description="agent yaml, when the checkpoint has none beside it")
     engine_config: str | None = Field(None, description="engine yaml (default: the one beside the checkpoint)")
     play: bool = Field(True, description="start stepping at once")
+    b_run_id: int | None = Field(None, description="A/B: a second run, rolled out beside from the same clip starts")
+    b_checkpoint: str | None = Field(None, description="A/B: a second checkpoint (its configs beside it)")
 
 
 class ExportReplay(StrictBody):
@@ -135,26 +137,33 @@ def load_rollout(body: LoadRollout, request: Request) -> dict[str, Any]:
     clip as a ghost. 400 with one message when the checkpoint does not fit (another character or
     observation size) or is not a checkpoint. The rollout reloads the file when it changes."""
     studio = studio_of(request)
-    s = studio.settings
     if (body.run_id is None) == (body.checkpoint is None):
         raise HTTPException(422, "give either `run_id` or `checkpoint`")
-    run_name = None
-    if body.run_id is not None:
-        run = studio.runs.get(body.run_id)  # 404 when there is no such run
-        checkpoint = Path(run.out_dir) / CHECKPOINT
-        if not checkpoint.is_file():
-            raise HTTPException(
-                400, f"run {run.id} has no checkpoint yet ({CHECKPOINT} appears after its first iteration)"
-            )
-        run_name = run.name
-    else:
-        checkpoint = confine(body.checkpoint, [*s.data_dirs, s.runs_dir])
-    roots = s.readable_roots
+    if body.b_run_id is not None and body.b_checkpoint is not None:
+        raise HTTPException(422, "give at most one of `b_run_id` and `b_checkpoint`")
+    checkpoint, run_name = _checkpoint_of(studio, body.run_id, body.checkpoint)
+    partner = None
+    if body.b_run_id is not None or body.b_checkpoint is not None:
+        b_path, b_name = _checkpoint_of(studio, body.b_run_id, body.b_checkpoint)
+        partner = (b_path, body.b_run_id, b_name)
+    roots = studio.settings.readable_roots
     configs = {
         k: confine(v, roots) if (v := getattr(body, k)) else None
         for k in ("env_config", "agent_config", "engine_config")
     }
-    return roll_out(studio, checkpoint, configs, play=body.play, run_id=body.run_id, run_name=run_name)
+    return roll_out(studio, checkpoint, configs, play=body.play, run_id=body.run_id, run_name=run_name, partner=partner)
+
+
+def _checkpoint_of(studio: Any, run_id: int | None, checkpoint: str | None) -> tuple[Path, str | None]:
+    """The checkpoint file of a run (its `model.pt`) or a confined path, and the run's name."""
+    s = studio.settings
+    if run_id is None:
+        return confine(checkpoint, [*s.data_dirs, s.runs_dir]), None
+    run = studio.runs.get(run_id)  # 404 when there is no such run
+    path = Path(run.out_dir) / CHECKPOINT
+    if not path.is_file():
+        raise HTTPException(400, f"run {run.id} has no checkpoint yet ({CHECKPOINT} appears after its first iteration)")
+    return path, run.name
 
 
 def roll_out(
@@ -165,15 +174,15 @@ def roll_out(
     play: bool,
     run_id: int | None = None,
     run_name: str | None = None,
+    partner: tuple[Path, int | None, str | None] | None = None,
 ) -> dict[str, Any]:
-    """Show the rollout of `checkpoint` on `configs` (None: the ones beside it); its state. A broken
-    checkpoint or config is a 400 with one line."""
+    """Show the rollout of `checkpoint` on `configs` (None: the ones beside it); its state. `partner`
+    (checkpoint, run id, run name): B of an A/B rollout, on the configs beside it. A broken checkpoint
+    or config, or two that cannot pair, is a 400 with one line."""
     try:
-        source = source_for_checkpoint(checkpoint, run_id=run_id, run_name=run_name, **configs)
-        check_finite_checkpoint(checkpoint)  # unreadable or diverged (NaN weights): one line, before any build
-        if source.data_dir is None:
-            source.data_dir = studio.settings.data_dir
-        snap = studio.load_rollout(source, play=play)
+        source = _source(studio, checkpoint, configs, run_id, run_name, side="A" if partner is not None else "")
+        b = _source(studio, partner[0], {}, partner[1], partner[2], side="B") if partner is not None else None
+        snap = studio.load_rollout(source, play=play, partner=b)
     except MimicKitError:
         raise
     except Exception as e:  # noqa: BLE001 - a broken config is the user's to fix: one line, not a traceback
@@ -306,6 +315,27 @@ def download_replay(name: str, request: Request) -> FileResponse:
     # A symlink placed in the replays folder must not lead out of it.
     path = confine(str(folder / name), [folder])
     return FileResponse(path, media_type="text/html", filename=name)
+
+
+def _source(
+    studio: Any,
+    checkpoint: Path,
+    configs: dict[str, Path | None],
+    run_id: int | None,
+    run_name: str | None,
+    side: str = "",
+) -> RolloutSource:
+    """What to build a rollout of `checkpoint` from; an A/B side's error (`side` "A" or "B") says which."""
+    try:
+        source = source_for_checkpoint(checkpoint, run_id=run_id, run_name=run_name, **configs)
+        check_finite_checkpoint(checkpoint)  # unreadable or diverged (NaN weights): one line, before any build
+    except MimicKitError as e:
+        if not side:
+            raise
+        raise MimicKitError(f"{side}: {e}") from None
+    if source.data_dir is None:
+        source.data_dir = studio.settings.data_dir
+    return source
 
 
 def _char_for(studio: Any, shown: str, clip: Path, char: str | None) -> Path:

@@ -4,12 +4,17 @@ with the scene commands, read its state and reward-term history; refuse checkpoi
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from mimickit.anim.motion import load_motion, save_motion
+from mimickit.util.paths import PROJECT_DATA_DIR
 from tests.studio.conftest import ENV_YAML, StudioProcess, wait_for, write_arg_file, write_checkpoint_dir
 
 pytestmark = pytest.mark.integration
@@ -190,5 +195,100 @@ def test_follow_keeps_a_climbing_reference_in_view(
     try:
         high = wait_for(lambda: (st := state(studio))["rollout"]["follow_height"] > 0.5 and st, 40, "a raised view")
         assert high["follow"]
+    finally:
+        studio.post("/api/scene/rollout/close")
+
+
+SHIPPED = "data/models/deepmimic_humanoid_demo_model.pt"
+
+
+def fake_run_with_checkpoint(studio: StudioProcess, name: str) -> dict:
+    """A finished fake run whose folder then gets an untrained checkpoint and its configs."""
+    write_arg_file(studio.runs_dir, name, rows=2, period=0.05)
+    run = studio.post("/api/runs", {"arg_file": str(studio.runs_dir / "args" / f"{name}.txt")}).json()
+    wait_for(lambda: studio.get(f"/api/runs/{run['id']}").json()["status"] == "finished", what="the fake run")
+    write_checkpoint_dir(Path(run["out_dir"]))
+    return run
+
+
+def test_ab_rollout_of_two_checkpoints(studio: StudioProcess) -> None:
+    """A/B: the shipped demo model (A) and a run's untrained checkpoint (B) side by side from the same clip
+    starts: B's state, figure and reward rows beside A's; the scene commands move both; a newer B
+    checkpoint starts a new pair; deleting B's run stops the pair."""
+    run = fake_run_with_checkpoint(studio, "ab_b")
+    r = studio.post("/api/scene/load_rollout", {"checkpoint": SHIPPED, "b_run_id": run["id"]})
+    assert r.status_code == 200, r.text
+    b = r.json()["rollout"]["b"]
+    assert b["run_id"] == run["id"] and b["checkpoint"] == str(Path(run["out_dir"]) / "model.pt")
+    figures = r.json()["rollout"]["figures"]  # both drawn: a character and a ghost each, labelled A and B
+    assert [(f["label"], f["bodies"], f["ghost"]) for f in figures] == [("A", 15, 15), ("B", 15, 15)]
+    assert figures[1]["at"][1] - figures[0]["at"][1] == pytest.approx(3.0, abs=0.3)  # B's lane behind A's
+    s = wait_for(lambda: (st := state(studio))["rollout"]["b"]["waiting"] and st, 30, "B to fall and wait")["rollout"]
+    assert not s["waiting"] and s["b"]["episode"] == s["episode"] == 0  # the trained A goes on in the same pair
+    rows = studio.get("/api/scene/rollout/history").json()["rows"]
+    assert rows and all(set(row["b"]) == {"reward", "terms"} for row in rows)
+    assert rows[0]["b"]["reward"] is not None and rows[-1]["b"]["reward"] is None
+
+    paused = studio.post("/api/scene/pause").json()["rollout"]
+    stepped = studio.post("/api/scene/step", {"frames": 2}).json()["rollout"]
+    assert stepped["step"] == paused["step"] + 2 and stepped["b"]["waiting"]
+    back = studio.post("/api/scene/seek", {"frame": 3}).json()["rollout"]  # both sides at that frame
+    assert not back["live"] and back["episode_step"] == back["b"]["episode_step"] == 3 and not back["b"]["waiting"]
+    assert back["b"]["reward"] is not None and set(back["b"]["reward_terms"]) == TERMS
+
+    write_checkpoint_dir(Path(run["out_dir"]))  # the trainer wrote a newer B: both start a new pair
+    new = wait_for(lambda: (st := state(studio))["rollout"]["b"]["reloads"] == 1 and st, 20, "B reloaded")["rollout"]
+    assert new["live"] and new["episode"] == new["b"]["episode"] == 1 and new["episode_step"] == 0
+    assert new["reloads"] == 0 and new["b"]["episode_step"] == 0
+
+    assert studio.client.delete(f"/api/runs/{run['id']}").status_code == 204  # B's checkpoint is gone
+    assert state(studio)["mode"] == "clip"
+
+
+def test_ab_rollout_reloads_a_and_takes_b_as_a_checkpoint(studio: StudioProcess) -> None:
+    """A from a run, B a checkpoint path (`b_checkpoint`): a newer A starts a new pair too."""
+    run = fake_run_with_checkpoint(studio, "ab_a")
+    r = studio.post("/api/scene/load_rollout", {"run_id": run["id"], "b_checkpoint": SHIPPED, "play": False})
+    assert r.status_code == 200, r.text
+    try:
+        assert r.json()["rollout"]["b"]["checkpoint"].endswith(SHIPPED) and not r.json()["playing"]
+        studio.post("/api/scene/step", {"frames": 5})
+        write_checkpoint_dir(Path(run["out_dir"]))
+        new = wait_for(lambda: (st := state(studio))["rollout"]["reloads"] == 1 and st, 20, "A reloaded")["rollout"]
+        assert new["episode"] == new["b"]["episode"] == 1 and new["b"]["reloads"] == 0
+    finally:
+        studio.post("/api/scene/rollout/close")
+
+
+def test_ab_misfits_are_one_line_and_keep_the_rollout_shown(
+    studio: StudioProcess, demo_checkpoint: Path, misfit_checkpoint: Path
+) -> None:
+    """Two Bs given, a B that does not fit its env, one that is no checkpoint, one on another clip and one
+    of another kind of env: refused in one line naming the problem, and the rollout shown stays."""
+    shown = studio.post("/api/scene/load_rollout", {"checkpoint": str(demo_checkpoint), "play": False})
+    assert shown.status_code == 200, shown.text
+    clip = load_motion(PROJECT_DATA_DIR / "motions" / "humanoid_demo_squat.pkl")  # a second after it begins
+    shifted = studio.runs_dir / "squat_shifted.pkl"
+    save_motion(shifted, dataclasses.replace(clip, frames=np.roll(clip.frames, round(clip.fps), axis=0)))
+    other_clip = ENV_YAML.read_text().replace("data/motions/humanoid_demo_squat.pkl", str(shifted))
+    amp_env = (ENV_YAML.parent / "amp_humanoid_env.yaml").read_text()
+    unreadable = write_checkpoint_dir(studio.runs_dir / "ckpt-unreadable", save_model=False)
+    unreadable.write_bytes(b"not a checkpoint")
+    cases = [
+        (str(misfit_checkpoint), "B: .*does not fit.*observation size differs"),
+        (str(unreadable), "B: .*not a readable checkpoint"),
+        (str(write_checkpoint_dir(studio.runs_dir / "ckpt-shifted", other_clip)), "both must track the same clip"),
+        (str(write_checkpoint_dir(studio.runs_dir / "ckpt-amp", amp_env)), "one kind of env: .*B's AMPEnv"),
+    ]
+    try:
+        both = studio.post("/api/scene/load_rollout", {"checkpoint": SHIPPED, "b_run_id": 1, "b_checkpoint": SHIPPED})
+        assert both.status_code == 422 and "at most one of" in both.json()["detail"]
+        for b, says in cases:
+            r = studio.post("/api/scene/load_rollout", {"checkpoint": SHIPPED, "b_checkpoint": b})
+            detail = r.json()["detail"]
+            assert r.status_code == 400 and "\n" not in detail and re.search(says, detail), (b, r.text)
+            after = state(studio)
+            assert after["mode"] == "rollout" and after["rollout"]["checkpoint"] == str(demo_checkpoint)
+            assert after["rollout"]["b"] is None
     finally:
         studio.post("/api/scene/rollout/close")
