@@ -10,6 +10,9 @@ export async function refreshCheckpoints() {
     `${c.run_id !== null ? `#${c.run_id} ${c.run_name} · ` : ""}${c.path.split("/").slice(-2).join("/")} · ${new Date(c.mtime * 1000).toLocaleTimeString()}`));
   sel.replaceChildren(...(opts.length ? opts : [el("option", { value: "" }, "(no checkpoints yet)")]));
   if (keep && list.some((c) => c.path === keep)) sel.value = keep;
+  const b = $("checkpoint-b"), keepB = b.value;  // A/B: the same list, B's pick
+  b.replaceChildren(el("option", { value: "" }, "B: (pick a second checkpoint)"), ...opts.map((o) => o.cloneNode(true)));
+  if (keepB && list.some((c) => c.path === keepB)) b.value = keepB;
 }
 
 export function fillFitTargets(library) {
@@ -27,6 +30,11 @@ export function initCheckpoints() {
   $("rollout-button").addEventListener("click", () => {
     const path = chosenCheckpoint();
     if (path) loadRollout({ checkpoint: path });
+  });
+  $("ab-button").addEventListener("click", () => {
+    const a = chosenCheckpoint(), b = $("checkpoint-b").value;
+    if (!a || !b) { $("checkpoint-error").textContent = "A/B: pick a checkpoint (A) and a second one (B)"; return; }
+    loadRollout({ checkpoint: a, b_checkpoint: b });
   });
   $("inspect-button").addEventListener("click", () => inspectCheckpoint(chosenCheckpoint()));
   $("fit-target").addEventListener("change", () => { if (lastInspected) inspectCheckpoint(lastInspected); });

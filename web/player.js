@@ -74,37 +74,64 @@ export async function loadRollout(body) {
   }
 }
 
+// One side's label: who, when its checkpoint was saved, the episode shown and its reward terms.
+function sideLabel(r, side) {
+  const who = r.run_id !== null ? `run #${r.run_id} ${r.run_name || ""}` : r.checkpoint.split("/").slice(-2).join("/");
+  const saved = new Date(r.checkpoint_mtime * 1000).toLocaleTimeString();
+  const terms = Object.entries(r.reward_terms).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(" · ");
+  return `${side ? `${side}: ` : ""}${who} · checkpoint saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
+    ` · episode ${r.episode} · return ${r.episode_return.toFixed(2)}${r.waiting ? " · ended, waiting for the other" : ""}` +
+    `${terms ? ` · ${terms}` : ""}${r.error ? ` · ${r.error}` : ""}`;
+}
+
+const plotOptions = (title) => ({
+  title, xLabel: "time (s)", yLabel: "reward", height: 130, window: 10, yRange: [0, 1], colors: { reward: "#ffffff" },
+  gaps: true,  // an A/B side holding its pose has no reward: a gap, not a line across
+});
+
 export const rolloutView = {
-  plot: null, lastStep: -1, bodyError: null,
+  plot: null, plotB: null, lastStep: -1, bodyError: null,
   init() {
     this.bodyError = new BodyErrorChart($("body-error"));
-    this.plot = new CurvePlot($("rollout-plot"), {
-      title: "rollout: reward and its terms, last 10 s", xLabel: "time (s)", yLabel: "reward",
-      height: 130, window: 10, yRange: [0, 1], colors: { reward: "#ffffff" },
-    });
+    this.plot = new CurvePlot($("rollout-plot"), plotOptions("rollout: reward and its terms, last 10 s"));
+    this.plotB = new CurvePlot($("rollout-plot-b"), plotOptions("B: reward and its terms, last 10 s"));
   },
-  reset() { this.lastStep = -1; this.plot.clear(); this.bodyError.clear(); },
+  reset() {
+    this.lastStep = -1;
+    for (const p of [this.plot, this.plotB]) p.clear();
+    this.bodyError.clear();
+  },
   apply(s) {
-    const r = s.rollout;
-    const who = r.run_id !== null ? `run #${r.run_id} ${r.run_name || ""}` : r.checkpoint.split("/").slice(-2).join("/");
-    const saved = new Date(r.checkpoint_mtime * 1000).toLocaleTimeString();
-    const terms = Object.entries(r.reward_terms).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(" · ");
-    $("rollout-label").textContent = `${who} · checkpoint saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
-      ` · episode ${r.episode} · return ${r.episode_return.toFixed(2)} · ${terms}${r.error ? ` · ${r.error}` : ""}`;
-    $("clip-label").textContent = `rollout of ${r.checkpoint.split("/").slice(-2).join("/")} in ${r.env_config.split("/").pop()} (ghost: the reference clip)`;
+    const r = s.rollout, b = r.b;
+    for (const id of ["rollout-b", "rollout-b-bar"]) $(id).hidden = !b;
+    $("rollout-panel").classList.toggle("ab", !!b);  // the two plots side by side, no error bars
+    $("rollout-label").textContent = sideLabel(r, b ? "A" : "");
+    $("clip-label").textContent = b
+      ? `A/B: ${r.checkpoint.split("/").slice(-2).join("/")} (front) and ${b.checkpoint.split("/").slice(-2).join("/")} (behind), each episode from the same clip start`
+      : `rollout of ${r.checkpoint.split("/").slice(-2).join("/")} in ${r.env_config.split("/").pop()} (ghost: the reference clip)`;
+    this.plot.setTitle(b ? "A: reward and its terms, last 10 s" : "rollout: reward and its terms, last 10 s");
     this.bodyError.apply(r.body_error);  // the frame shown's (live or history)
+    if (b) $("rollout-label-b").textContent = sideLabel(b, "B");
     const cursor = r.live ? null : s.time;
-    if (cursor !== this.plot.cursor) { this.plot.cursor = cursor; this.plot.draw(); }
+    for (const p of b ? [this.plot, this.plotB] : [this.plot]) {
+      if (cursor !== p.cursor) { p.cursor = cursor; p.draw(); }
+    }
   },
   addRows(h) {  // {reset, step, reward_weights, rows}: reset = another rollout, checkpoint or step numbering
     if (h.reset) this.reset();
+    const add = (plot, time, side) => {
+      if (side.reward === null) plot.addGap(time);
+      else plot.add("reward", time, side.reward);
+      for (const [k, v] of Object.entries(side.terms)) plot.add(k, time, v);
+    };
     for (const row of h.rows) {
       if (row.step <= this.lastStep) continue;
-      this.plot.add("reward", row.time, row.reward);
-      for (const [k, v] of Object.entries(row.terms)) this.plot.add(k, row.time, v);
+      add(this.plot, row.time, row);
+      if (row.b) add(this.plotB, row.time, row.b);
       this.lastStep = row.step;
     }
     this.plot.draw();
+    if (this.plotB.series.size) this.plotB.draw();
   },
 };
 

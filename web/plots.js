@@ -10,13 +10,15 @@ const MARKER_COLORS = { resume: "#8fa8ff", diverged: "#ff4d4d" };
 
 export class CurvePlot {
   // options: title, xLabel, yLabel, height, window (keep the last `window` x units), yRange ([lo, hi]),
-  // colors ({name: color}); `cursor` (an x value, or null) draws a dashed line there.
+  // colors ({name: color}), gaps (true: lines break at `addGap` points instead of spanning missing values);
+  // `cursor` (an x value, or null) draws a dashed line there.
   constructor(container, options = {}) {
     this.box = container;
     this.options = { height: 150, ...options };
     this.series = new Map(); // name -> {xs, ys}
     this.markers = []; // [{x, label, kind}]
     this.nonfinite = []; // [{name, x, token}]
+    this.gaps = []; // x values where no series has a value (an A/B side holding its pose)
     this.cursor = null;
     this.smoothing = 0;
     this.uplot = null;
@@ -30,7 +32,15 @@ export class CurvePlot {
     this.series.clear();
     this.markers = [];
     this.nonfinite = [];
+    this.gaps = [];
     this.draw();
+  }
+
+  addGap(x) {
+    if (!Number.isFinite(x)) return;
+    this.gaps.push(x);
+    const w = this.options.window;
+    if (w && this.gaps[0] < x - w * 1.5) this.gaps = this.gaps.filter((g) => g >= x - w);
   }
 
   add(name, x, y) {
@@ -61,6 +71,13 @@ export class CurvePlot {
     this.names = "";  // axis labels are fixed at construction: build again
   }
 
+  setTitle(title) {
+    if (this.options.title === title) return;
+    this.options.title = title;
+    this.names = "";  // the title is fixed at construction: build again
+    this.draw();
+  }
+
   // Many rows arrive at once when a stream starts: draw once per animation frame.
   draw() {
     if (this.pending) return;
@@ -84,6 +101,7 @@ export class CurvePlot {
     const xs = new Set();
     for (const s of this.series.values()) for (const x of s.xs) xs.add(x);
     for (const m of [...this.markers, ...this.nonfinite]) xs.add(m.x);
+    for (const g of this.gaps) xs.add(g);
     let x = [...xs].sort((a, b) => a - b);
     const w = this.options.window;
     if (w && x.length) x = x.filter((v) => v >= x[x.length - 1] - w);
@@ -115,7 +133,7 @@ export class CurvePlot {
       series: [{ label: o.xLabel || "x", value: (u, v) => (v === null ? "–" : fmt(v)) },
         ...names.map((n, i) => ({
           label: n.replace("reward_terms.", ""), stroke: colors[n] || PALETTE[i % PALETTE.length], width: 1.5,
-          spanGaps: true, points: { show: false }, value: (u, v) => (v === null ? "–" : fmt(v)),
+          spanGaps: !o.gaps, points: { show: false }, value: (u, v) => (v === null ? "–" : fmt(v)),
         }))],
       legend: { show: true, live: true },
       cursor: { drag: { x: false, y: false } },
