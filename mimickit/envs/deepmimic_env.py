@@ -25,7 +25,16 @@ from mimickit.engines.engine import ObjType
 from mimickit.envs.base_env import DoneFlags, EnvMode
 from mimickit.envs.char_env import CharEnv
 from mimickit.envs.char_obs import compute_phase_obs, compute_tar_pose_obs, join_tar_obs
-from mimickit.envs.deepmimic_rewards import TERM_NAMES, body_pos_errors, compute_reward_terms, tracking_errors
+from mimickit.envs.deepmimic_rewards import (
+    TERM_NAMES,
+    TRACKING_NAMES,
+    Deltas,
+    body_pos_errors,
+    compute_reward_errors,
+    reward_terms,
+    stacked_tracking_errors,
+    state_deltas,
+)
 from mimickit.envs.env_config import DeepMimicEnvConfig
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
@@ -88,9 +97,12 @@ class DeepMimicEnv(CharEnv):
         self._non_contact_ids = torch.tensor(non_contact, dtype=torch.long, device=dev)
         self._reward_weights = {t: getattr(config, f"reward_{t}_w") for t in TERM_NAMES}
         self._reward_scales = {t: getattr(config, f"reward_{t}_scale") for t in TERM_NAMES}
+        self._neg_reward_scales = torch.tensor([[-self._reward_scales[t]] for t in TERM_NAMES], device=dev)
+        self._info_rows: dict[str, tuple[torch.Tensor, dict]] = {}  # `_store_rows`' buffers [K, N], their dicts
         steps = config.tar_obs_steps if config.enable_tar_obs else []
         self._ref_steps = torch.tensor([0, *steps], dtype=torch.float32, device=dev)
         self._all_env_ids = torch.arange(n, device=dev)
+        self._clip_end_cache: torch.Tensor | None = None  # `_clip_end` of the current motion ids
         self._frames: dict[str, torch.Tensor] = {}
         self._tar_pose_obs: torch.Tensor | None = None  # valid from `_advance_clock` until the frames change
         self._step_state: dict[str, torch.Tensor] | None = None  # the character's state, within one step
@@ -333,6 +345,7 @@ class DeepMimicEnv(CharEnv):
     def _reset_char(self, env_ids: torch.Tensor) -> None:
         ids, times, frames = self._draw_reset_states(len(env_ids))
         self._motion_ids.index_copy_(0, env_ids, ids)
+        self._clip_end_cache = None
         self._motion_time_offsets.index_copy_(0, env_ids, times)
         self._packed_frames.index_copy_(0, env_ids, frames)
         self._tar_pose_obs = None
@@ -419,18 +432,21 @@ class DeepMimicEnv(CharEnv):
         if env_ids is not None:  # a reset: its reward terms stay the last step's (module doc)
             self._update_tracking(env_ids)
             return
-        sim, ref = self._sim_state(), self._ref_state()  # a step: its reward terms and tracking errors
-        self._store_info("reward_terms", self._reward_terms(sim, ref), None)
+        sim, ref = self._char_state(), self._ref  # a step: its reward terms and tracking errors
+        d = state_deltas(sim, ref)
+        self._store_rows("reward_terms", TERM_NAMES, self._reward_terms(sim, ref, d), None)
         self._last_sim = sim  # the state pose termination reads
-        self._update_tracking(None, sim, ref)
+        self._update_tracking(None, sim, ref, d)
 
     def score_state(self) -> dict[str, dict[str, torch.Tensor]]:
         """Every env's reward terms and tracking errors for its current state against its reference, as a
         step computes them after its physics; nothing is stored. A way to check a pose, e.g. a reset's."""
-        sim, ref = self._sim_state(), self._ref_state()
+        sim, ref = self._char_state(), self._ref
+        d = state_deltas(sim, ref)
+        terms, tracking = self._reward_terms(sim, ref, d), stacked_tracking_errors(sim, ref, d, self._dof_joint_ids)
         return {
-            "reward_terms": self._reward_terms(sim, ref),
-            "tracking": tracking_errors(sim, ref, self._dof_joint_ids),
+            "reward_terms": dict(zip(TERM_NAMES, terms.unbind(0), strict=True)),
+            "tracking": dict(zip(TRACKING_NAMES, tracking.unbind(0), strict=True)),
         }
 
     def body_pos_errors(self) -> torch.Tensor:
@@ -439,11 +455,13 @@ class DeepMimicEnv(CharEnv):
         root-relative ones; the mean over J is the paper's position error)."""
         return body_pos_errors(self.get_char_state(), self._ref)
 
-    def _reward_terms(self, sim: dict[str, torch.Tensor], ref: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return compute_reward_terms(
-            sim, ref, self._joint_err_w, self._dof_err_w, self._reward_scales, self._track_root,
+    def _reward_terms(self, sim: dict[str, torch.Tensor], ref: dict[str, torch.Tensor], d: Deltas) -> torch.Tensor:
+        """The unweighted terms [5, N] in TERM_NAMES order."""
+        errors = compute_reward_errors(
+            sim, ref, d, self._key_body_ids, self._joint_err_w, self._dof_err_w, self._track_root,
             self.config.root_height_obs,
         )  # fmt: skip
+        return reward_terms(errors, self._neg_reward_scales)
 
     def _ref_state(self, env_ids: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         ref = self._ref if env_ids is None else {k: v.index_select(0, env_ids) for k, v in self._ref.items()}
@@ -454,6 +472,7 @@ class DeepMimicEnv(CharEnv):
         env_ids: torch.Tensor | None,
         sim: dict[str, torch.Tensor] | None = None,
         ref: dict[str, torch.Tensor] | None = None,
+        d: Deltas | None = None,
     ) -> None:
         """Tracking errors of the given envs (all when None) into `info["tracking"]`, from their sim and
         reference states (read here unless given); TEST mode also records them, which `mimickit test`
@@ -464,10 +483,10 @@ class DeepMimicEnv(CharEnv):
             return
         if sim is None or ref is None:
             sim, ref = self._sim_state(env_ids), self._ref_state(env_ids)
-        tracking = tracking_errors(sim, ref, self._dof_joint_ids)
-        self._store_info("tracking", tracking, env_ids)
+        tracking = stacked_tracking_errors(sim, ref, d or state_deltas(sim, ref), self._dof_joint_ids)
+        self._store_rows("tracking", TRACKING_NAMES, tracking, env_ids)
         if self._mode == EnvMode.TEST:
-            self._record_tracking(tracking)
+            self._record_tracking(dict(zip(TRACKING_NAMES, tracking.unbind(0), strict=True)))
 
     def _store_info(self, key: str, values: dict[str, torch.Tensor], env_ids: torch.Tensor | None) -> None:
         """Write per-env values [n] into the persistent info buffers [N] (only the rows of env_ids)."""
@@ -479,6 +498,19 @@ class DeepMimicEnv(CharEnv):
                 buf[k][:] = v
             else:
                 buf[k].index_copy_(0, env_ids, v)
+
+    def _store_rows(self, key: str, names: tuple[str, ...], values: torch.Tensor, env_ids: torch.Tensor | None) -> None:
+        """Write stacked per-env values [K, n] (K = len(names)) into `info[key]`: {name: [N]}, the rows of
+        one [K, N] buffer, so that a step stores them with one copy (only the columns of env_ids)."""
+        buf, rows = self._info_rows.get(key, (None, None))
+        if buf is None or self._info.get(key) is not rows:  # new, or dropped by a subclass to be rebuilt
+            buf = torch.zeros(len(names), self.num_envs, device=self.device)
+            rows = self._info[key] = dict(zip(names, buf, strict=True))
+            self._info_rows[key] = (buf, rows)
+        if env_ids is None:
+            buf.copy_(values)
+        else:
+            buf.index_copy_(1, env_ids, values)
 
     def _record_tracking(self, tracking: dict[str, torch.Tensor]) -> None:
         if not hasattr(self, "_tracking_sum"):
@@ -494,36 +526,41 @@ class DeepMimicEnv(CharEnv):
     def _update_done(self) -> None:
         super()._update_done()
         done = self._done_buf
-        motion_time = self.get_motion_time()
-        clamp = self._motion_lib.get_motion_loop_mode(self._motion_ids) != LoopMode.WRAP
-        finished = clamp & (motion_time >= self._motion_lib.get_motion_length(self._motion_ids))
-        done.masked_fill_(finished, int(DoneFlags.SUCC))
+        done.masked_fill_(self.get_motion_time() >= self._clip_end(), int(DoneFlags.SUCC))
         if self.config.enable_early_termination:
             done.masked_fill_(self._fallen() | self._pose_failed(), int(DoneFlags.FAIL))
+
+    def _clip_end(self) -> torch.Tensor:
+        """Per env the motion time at which its clip ends the episode [N]: the clip's length, or +inf for
+        a wrapping clip. Cached until a reset changes the motion ids (one comparison per step instead of
+        two table lookups)."""
+        if self._clip_end_cache is None:
+            lib, ids = self._motion_lib, self._motion_ids
+            wrap = lib.get_motion_loop_mode(ids) == LoopMode.WRAP
+            self._clip_end_cache = lib.get_motion_length(ids).masked_fill(wrap, math.inf)
+        return self._clip_end_cache
 
     def _fallen(self) -> torch.Tensor:
         if not self.config.contact_bodies:
             return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         forces = self._engine.get_ground_contact_forces(self._char_id).index_select(1, self._non_contact_ids)
-        return (forces.abs() > CONTACT_FORCE_THRESHOLD).any(-1).any(-1)
+        return (forces.abs() > CONTACT_FORCE_THRESHOLD).any(dim=(1, 2))
 
     def _pose_failed(self) -> torch.Tensor:
         if not self.config.pose_termination:
             return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         d2 = self.config.pose_termination_dist**2
         sim_pos, ref_pos = self._last_sim["body_pos"], self._ref["body_pos"]
-        if self.config.global_obs and self._track_root:
-            root_far = ((sim_pos[:, 0] - ref_pos[:, 0]) ** 2).sum(-1) > d2
+        if self.config.global_obs and self._track_root:  # the root's own distance is body 0's below
             diff = sim_pos - ref_pos
-        else:
-            sim_rel = sim_pos[:, 1:] - sim_pos[:, :1]
-            ref_rel = ref_pos[:, 1:] - ref_pos[:, :1]
-            if not self.config.global_obs:
-                sim_rel = tu.quat_rotate_inverse(self._last_sim["root_rot"].unsqueeze(1), sim_rel)
-                ref_rel = tu.quat_rotate_inverse(self._ref["root_rot"].unsqueeze(1), ref_rel)
-            root_far = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-            diff = sim_rel - ref_rel
-        return root_far | ((diff * diff).sum(-1).max(-1).values > d2)
+            return (diff * diff).sum(-1).max(-1).values > d2
+        sim_rel = sim_pos[:, 1:] - sim_pos[:, :1]
+        ref_rel = ref_pos[:, 1:] - ref_pos[:, :1]
+        if not self.config.global_obs:
+            sim_rel = tu.quat_rotate_inverse(self._last_sim["root_rot"].unsqueeze(1), sim_rel)
+            ref_rel = tu.quat_rotate_inverse(self._ref["root_rot"].unsqueeze(1), ref_rel)
+        diff = sim_rel - ref_rel
+        return (diff * diff).sum(-1).max(-1).values > d2
 
     def info_snapshot(self) -> dict[str, Any]:
         return self._info
