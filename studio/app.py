@@ -223,10 +223,14 @@ def create_app(settings: Settings) -> FastAPI:
     close_proxy = None
 
     @contextlib.asynccontextmanager
-    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # The job lists at start: those a server before this one recorded (a job it died with: failed).
+        jobs = [evals_api.jobs_in(app.state, settings), videos_api.jobs_in(app.state, settings)]
         yield
         if close_proxy is not None:
             await close_proxy()
+        for queue in jobs:
+            queue.close()  # a running job is killed; active jobs are recorded as failed (the server stopped)
         studio.close()
 
     app = FastAPI(

@@ -9,20 +9,14 @@ that fails says why in one line: `mimickit`'s own `error:` line, else the last l
 `stop` ends a queued job before it starts and kills a running one's process group; `remove` forgets an
 ended job and deletes its folder.
 
-Jobs live in memory (a restarted server starts with none); their folders stay.
+The queue, the worker and the job records are `studio/job_queue.py`'s: each job's `job.json` (its
+request, status, times, rows and mean) lets a restarted server list the jobs of the one before.
 """
 
 from __future__ import annotations
 
-import atexit
 import json
-import os
-import queue
-import shutil
-import subprocess
 import sys
-import threading
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,33 +24,28 @@ from typing import Any
 import yaml
 
 from mimickit.util.errors import MimicKitError
-from studio.job_process import failure_line, kill_group
+from studio.job_process import failure_line
+from studio.job_queue import ACTIVE, Job, JobQueue
 from studio.library import one_line
-from studio.runs import child_env
 from studio.settings import Settings
+
+__all__ = ["ACTIVE", "EVALS_DIR", "EvalJob", "EvalJobs", "clip_env_config"]
 
 EVALS_DIR = "evals"
 EVAL_COMMAND = [sys.executable, "-m", "mimickit.cli", "eval"]
-ACTIVE = ("queued", "running")
 
 
-@dataclass
-class EvalJob:
-    id: int
+@dataclass(kw_only=True)
+class EvalJob(Job):
+    PATH_FIELDS = ("folder", "checkpoint", "arg_file")
+
     checkpoint: Path
     arg_file: Path
-    motion_file: str | None
-    episodes: int
-    folder: Path
+    motion_file: str | None = None
+    episodes: int = 8
     run_id: int | None = None
-    status: str = "queued"  # queued, running, then finished, failed or stopped
-    error: str | None = None
     rows: list[dict[str, Any]] = field(default_factory=list)
     mean: dict[str, Any] | None = None
-    command: list[str] = field(default_factory=list)
-    created_at: float = field(default_factory=time.time)
-    started_at: float | None = None
-    ended_at: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -78,21 +67,16 @@ class EvalJob:
         }
 
 
-class EvalJobs:
-    """The jobs of one server and the worker thread that runs them."""
+class EvalJobs(JobQueue[EvalJob]):
+    """The eval jobs under `<runs-dir>/evals/` and the worker thread that runs them."""
+
+    job_type = EvalJob
+    cannot_run = "could not run the eval"
 
     def __init__(self, settings: Settings, command: list[str] | None = None) -> None:
         self.settings = settings
         self.command = list(command or EVAL_COMMAND)
-        self._jobs: dict[int, EvalJob] = {}
-        self._lock = threading.Lock()
-        self._queue: queue.Queue[EvalJob | None] = queue.Queue()
-        self._proc: subprocess.Popen[bytes] | None = None  # the running job's, set and read under the lock
-        self._next_id = 1  # never reused: a removed job's id does not come back as another job
-        self._closed = False
-        self._thread = threading.Thread(target=self._work, name="evals", daemon=True)
-        self._thread.start()
-        atexit.register(self.close)  # a server that exits leaves no eval running
+        super().__init__(settings.runs_dir / EVALS_DIR, "evals")
 
     def submit(
         self,
@@ -108,58 +92,25 @@ class EvalJobs:
         `configs` (env_config, agent_config, engine_config: the files beside a run's checkpoint)."""
         if arg_file is None and not configs:
             raise MimicKitError("an eval needs an arg file or the configs beside the checkpoint")
-        with self._lock:
-            job_id, self._next_id = self._next_id, self._next_id + 1
-            folder = self.settings.runs_dir / EVALS_DIR / f"{job_id:04d}-{int(time.time())}"
-            folder.mkdir(parents=True, exist_ok=True)
-            if arg_file is None:
-                arg_file = folder / "args.txt"
-                arg_file.write_text("".join(f"--{k} {v}\n" for k, v in configs.items() if v is not None))
-            job = EvalJob(job_id, checkpoint, arg_file, motion_file, episodes, folder, run_id)
+
+        def make(job_id: int, folder: Path) -> EvalJob:
+            args = arg_file
+            if args is None:
+                args = folder / "args.txt"
+                args.write_text("".join(f"--{k} {v}\n" for k, v in configs.items() if v is not None))
+            job = EvalJob(
+                id=job_id,
+                folder=folder,
+                checkpoint=checkpoint,
+                arg_file=args,
+                motion_file=motion_file,
+                episodes=episodes,
+                run_id=run_id,
+            )
             job.command = self._argv(job)
-            self._jobs[job_id] = job
-        self._queue.put(job)
-        return job
+            return job
 
-    def get(self, job_id: int) -> EvalJob | None:
-        with self._lock:
-            return self._jobs.get(job_id)
-
-    def list(self) -> list[EvalJob]:
-        with self._lock:
-            return sorted(self._jobs.values(), key=lambda j: -j.id)
-
-    def stop(self, job_id: int) -> bool:
-        """Stop a queued job (it will not start) or a running one (its process group killed): status
-        `stopped`. False when the job had already ended."""
-        with self._lock:
-            job = self._jobs.get(job_id)
-            if job is None or job.status not in ACTIVE:
-                return False
-            running, proc = job.status == "running", self._proc
-            job.status, job.error, job.ended_at = "stopped", None, time.time()
-        if running and proc is not None:
-            kill_group(proc)
-        return True
-
-    def remove(self, job_id: int) -> bool:
-        """Forget an ended job and delete its folder. False while it is queued or running."""
-        with self._lock:
-            job = self._jobs.get(job_id)
-            if job is None or job.status in ACTIVE:
-                return False
-            del self._jobs[job_id]
-        shutil.rmtree(job.folder, ignore_errors=True)  # a folder this server made under <runs-dir>/evals
-        return True
-
-    def close(self) -> None:
-        """Stop the worker; a running eval's process group is killed."""
-        self._closed = True
-        proc = self._proc
-        if proc is not None:
-            kill_group(proc)
-        self._queue.put(None)
-        self._thread.join(timeout=5)
+        return self._add(make)
 
     def _argv(self, job: EvalJob) -> list[str]:
         argv = [*self.command, "--arg_file", str(job.arg_file), "--model_file", str(job.checkpoint)]
@@ -170,60 +121,25 @@ class EvalJobs:
             argv += ["--data_dir", str(self.settings.data_dir)]
         return argv
 
-    # -- the worker thread -------------------------------------------------------------------------
-
-    def _work(self) -> None:
-        while True:
-            job = self._queue.get()
-            if job is None or self._closed:
-                return
-            if job.status != "queued":  # stopped while it waited
-                continue
-            try:
-                self._run(job)
-            except Exception as e:  # noqa: BLE001 - a job that cannot run is a failed job, not a dead worker
-                self._end(job, "failed", error=one_line(f"could not run the eval: {type(e).__name__}: {e}"))
-
     def _run(self, job: EvalJob) -> None:
         out_path, err_path = job.folder / "report.json", job.folder / "console.log"
-        env = {**os.environ, **child_env()}
         with open(out_path, "wb") as out, open(err_path, "wb") as err:
-            with self._lock:  # a `stop` either comes first (the job never starts) or sees the process
-                if job.status != "queued":
-                    return
-                job.status, job.started_at = "running", time.time()
-                self._proc = proc = subprocess.Popen(
-                    job.command,
-                    stdin=subprocess.DEVNULL,
-                    stdout=out,
-                    stderr=err,
-                    cwd=job.folder,
-                    env=env,
-                    start_new_session=True,  # its own process group: `stop` and `close` reach its children too
-                )
-            code = proc.wait()
-        with self._lock:
-            self._proc = None
-            if job.status == "stopped":
+            proc = self._launch(job, out, err)
+            if proc is None:
                 return
+            code = self._wait(proc)
+        if job.status != "running":  # stopped meanwhile
+            return
         if code != 0:
-            self._end(job, "failed", error=failure_line("mimickit eval", err_path, code))
+            self._end(job, "failed", failure_line("mimickit eval", err_path, code))
             return
         try:
             report = json.loads(out_path.read_text())
             rows, mean = list(report["rows"]), report["mean"]
         except (ValueError, KeyError, TypeError) as e:
-            self._end(job, "failed", error=one_line(f"mimickit eval printed no report ({type(e).__name__}: {e})"))
+            self._end(job, "failed", one_line(f"mimickit eval printed no report ({type(e).__name__}: {e})"))
             return
         self._end(job, "finished", rows=rows, mean=mean)
-
-    def _end(self, job: EvalJob, status: str, error: str | None = None, **report: Any) -> None:
-        """The job's end, with its `rows` and `mean` when it finished; a job stopped meanwhile stays stopped."""
-        with self._lock:
-            if job.status == "stopped":
-                return
-            job.status, job.error, job.ended_at = status, error, time.time()
-            job.rows, job.mean = report.get("rows", job.rows), report.get("mean", job.mean)
 
 
 def clip_env_config(env_config: Path, clip: Path, out: Path) -> Path:

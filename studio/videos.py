@@ -2,44 +2,40 @@
 background subprocess per job.
 
 A job runs in its own folder, `<runs-dir>/videos/<id>/` (its working directory: MuJoCo's log and the
-like land there), in its own session (process group), so that stopping the server or the time limit
-kills the renderer and anything it started. For a checkpoint, the arg file `mimickit video` needs is
-written there, naming the env, agent and engine configs. The video is `video.mp4` in that folder, the
-command's output `console.log`. One worker thread renders the jobs one after another (rendering takes
-the cores a training needs), so no request waits on it. A job that fails says why in one line.
+like land there), in its own session (process group), so that `stop`, stopping the server or the time
+limit kills the renderer and anything it started. For a checkpoint, the arg file `mimickit video` needs
+is written there, naming the env, agent and engine configs. The video is `video.mp4` in that folder,
+the command's output `console.log`. One worker thread renders the jobs one after another (rendering
+takes the cores a training needs), so no request waits on it. A job that fails says why in one line.
 
-Jobs live in memory (a restarted server starts with none); their folders stay.
+The queue, the worker and the job records are `studio/job_queue.py`'s: each job's `job.json` lets a
+restarted server list the jobs of the one before (a finished one's MP4 is still served).
 """
 
 from __future__ import annotations
 
-import atexit
-import os
-import queue
 import subprocess
 import sys
-import threading
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from studio.job_process import failure_line, kill_group
-from studio.library import one_line
-from studio.runs import child_env
+from studio.job_process import failure_line
+from studio.job_queue import ACTIVE, Job, JobQueue
 from studio.settings import Settings
+
+__all__ = ["ACTIVE", "VIDEOS_DIR", "VIDEO_FILE", "VideoJob", "VideoJobs"]
 
 VIDEOS_DIR = "videos"
 VIDEO_FILE = "video.mp4"
 VIDEO_COMMAND = [sys.executable, "-m", "mimickit.cli", "video"]
 TIME_LIMIT_S = 600.0  # a render that takes longer than this is killed
-ACTIVE = ("queued", "running")
 
 
-@dataclass
-class VideoJob:
-    id: int
-    folder: Path
+@dataclass(kw_only=True)
+class VideoJob(Job):
+    PATH_FIELDS = ("folder", "clip", "char", "checkpoint", "data_dir")
+
     seconds: float
     width: int
     height: int
@@ -49,17 +45,17 @@ class VideoJob:
     configs: dict[str, Path] = field(default_factory=dict)
     run_id: int | None = None
     data_dir: Path | None = None
-    status: str = "queued"  # queued, running, then finished or failed
-    error: str | None = None
-    command: list[str] = field(default_factory=list)
     bytes: int | None = None
-    created_at: float = field(default_factory=time.time)
-    started_at: float | None = None
-    ended_at: float | None = None
 
     @property
     def file(self) -> Path:
         return self.folder / VIDEO_FILE
+
+    @classmethod
+    def from_record(cls, data: dict[str, Any]) -> VideoJob:
+        job = super().from_record(data)
+        job.configs = {str(k): Path(v) for k, v in dict(job.configs).items()}
+        return job  # type: ignore[return-value]
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -84,8 +80,11 @@ class VideoJob:
         }
 
 
-class VideoJobs:
-    """The video jobs of one server and the worker thread that renders them."""
+class VideoJobs(JobQueue[VideoJob]):
+    """The video jobs under `<runs-dir>/videos/` and the worker thread that renders them."""
+
+    job_type = VideoJob
+    cannot_run = "could not render the video"
 
     def __init__(
         self, settings: Settings, command: list[str] | None = None, time_limit_s: float = TIME_LIMIT_S
@@ -93,15 +92,7 @@ class VideoJobs:
         self.settings = settings
         self.command = list(command or VIDEO_COMMAND)
         self.time_limit_s = time_limit_s
-        self._jobs: dict[int, VideoJob] = {}
-        self._lock = threading.Lock()
-        self._queue: queue.Queue[VideoJob | None] = queue.Queue()
-        self._proc: subprocess.Popen[bytes] | None = None  # the running job's, set and read under the lock
-        self._next_id = 1
-        self._closed = False
-        self._thread = threading.Thread(target=self._work, name="videos", daemon=True)
-        self._thread.start()
-        atexit.register(self.close)  # a server that exits leaves no renderer running
+        super().__init__(settings.runs_dir / VIDEOS_DIR, "videos")
 
     def submit_clip(self, clip: Path, char: Path, *, seconds: float, width: int, height: int) -> VideoJob:
         """Queue `mimickit video --motion clip --char char`."""
@@ -124,34 +115,13 @@ class VideoJobs:
             seconds, width, height, checkpoint=checkpoint, configs=configs, run_id=run_id, data_dir=data_dir
         )
 
-    def get(self, job_id: int) -> VideoJob | None:
-        with self._lock:
-            return self._jobs.get(job_id)
-
-    def list(self) -> list[VideoJob]:
-        with self._lock:
-            return sorted(self._jobs.values(), key=lambda j: -j.id)
-
-    def close(self) -> None:
-        """Stop the worker; a running render's process group is killed."""
-        self._closed = True
-        with self._lock:
-            proc = self._proc
-        if proc is not None:
-            kill_group(proc)
-        self._queue.put(None)
-        self._thread.join(timeout=5)
-
     def _submit(self, seconds: float, width: int, height: int, **source: Any) -> VideoJob:
-        with self._lock:
-            job_id, self._next_id = self._next_id, self._next_id + 1
-            folder = self.settings.runs_dir / VIDEOS_DIR / f"{job_id:04d}-{int(time.time())}"
-            folder.mkdir(parents=True, exist_ok=True)
-            job = VideoJob(job_id, folder, seconds, width, height, **source)
+        def make(job_id: int, folder: Path) -> VideoJob:
+            job = VideoJob(id=job_id, folder=folder, seconds=seconds, width=width, height=height, **source)
             job.command = self._argv(job)
-            self._jobs[job_id] = job
-        self._queue.put(job)
-        return job
+            return job
+
+        return self._add(make)
 
     def _argv(self, job: VideoJob) -> list[str]:
         argv = [*self.command, "--out", str(job.file), "--seconds", f"{job.seconds:g}"]
@@ -167,40 +137,15 @@ class VideoJobs:
             argv += ["--data_dir", str(data_dir)]
         return argv
 
-    # -- the worker thread -------------------------------------------------------------------------
-
-    def _work(self) -> None:
-        while True:
-            job = self._queue.get()
-            if job is None or self._closed:
-                return
-            try:
-                self._run(job)
-            except Exception as e:  # noqa: BLE001 - a job that cannot run is a failed job, not a dead worker
-                self._end(job, "failed", one_line(f"could not render the video: {type(e).__name__}: {e}"))
-
     def _run(self, job: VideoJob) -> None:
         console = job.folder / "console.log"
         with open(console, "wb") as out:
-            with self._lock:
-                job.status, job.started_at = "running", time.time()
-                self._proc = proc = subprocess.Popen(
-                    job.command,
-                    stdin=subprocess.DEVNULL,
-                    stdout=out,
-                    stderr=subprocess.STDOUT,
-                    cwd=job.folder,
-                    env={**os.environ, **child_env()},
-                    start_new_session=True,  # its own process group: the time limit and `close` reach its children
-                )
-            try:
-                code = proc.wait(timeout=self.time_limit_s)
-            except subprocess.TimeoutExpired:
-                kill_group(proc)
-                proc.wait()
-                code = None
-        with self._lock:
-            self._proc = None
+            proc = self._launch(job, out, subprocess.STDOUT)
+            if proc is None:
+                return
+            code = self._wait(proc, self.time_limit_s)
+        if job.status != "running":  # stopped meanwhile
+            return
         if code is None:
             self._end(job, "failed", f"mimickit video took longer than {self.time_limit_s:g} s and was stopped")
         elif code != 0:
@@ -208,9 +153,4 @@ class VideoJobs:
         elif not job.file.is_file():
             self._end(job, "failed", f"mimickit video exited without writing {VIDEO_FILE}")
         else:
-            job.bytes = job.file.stat().st_size
-            self._end(job, "finished")
-
-    def _end(self, job: VideoJob, status: str, error: str | None = None) -> None:
-        with self._lock:
-            job.status, job.error, job.ended_at = status, error, time.time()
+            self._end(job, "finished", bytes=job.file.stat().st_size)

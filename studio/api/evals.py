@@ -19,6 +19,7 @@ from studio.checkpoints import configs_beside, configs_from_arg_file
 from studio.evals import ACTIVE, EvalJob, EvalJobs, clip_env_config
 from studio.runs import CHECKPOINT
 from studio.security import confine
+from studio.settings import Settings
 
 router = APIRouter(prefix="/evals", tags=["evals"], route_class=OneLineErrors)
 MAX_EPISODES = 256
@@ -38,13 +39,17 @@ class RollOutRow(StrictBody):
     play: bool = True
 
 
-def jobs_of(request: Request) -> EvalJobs:
-    """The server's eval jobs, made on first use (their worker thread starts with them)."""
-    state = request.app.state
+def jobs_in(state: Any, settings: Settings) -> EvalJobs:
+    """The app's eval jobs (`state.evals`), made on first use: the server makes them at start-up, listing
+    the jobs recorded under `<runs-dir>/evals/` (their worker thread starts with them)."""
     with _jobs_lock:
         if getattr(state, "evals", None) is None:
-            state.evals = EvalJobs(studio_of(request).settings)
+            state.evals = EvalJobs(settings)
         return state.evals
+
+
+def jobs_of(request: Request) -> EvalJobs:
+    return jobs_in(request.app.state, studio_of(request).settings)
 
 
 def _job(request: Request, job_id: int) -> EvalJob:
@@ -90,13 +95,14 @@ def start_eval(body: StartEval, request: Request) -> dict[str, Any]:
 
 @router.get("")
 def list_evals(request: Request) -> list[dict[str, Any]]:
-    """Every eval job of this server, newest first."""
+    """Every eval job, newest first: this server's and those a server before it recorded."""
     return [j.to_json() for j in jobs_of(request).list()]
 
 
 @router.get("/{job_id}")
 def get_eval(job_id: int, request: Request) -> dict[str, Any]:
-    """`status` (queued, running, finished, failed, stopped), `error` (one line) and, when finished, `rows`
+    """`status` (queued, running, finished, failed, stopped), `error` (one line; a job the server stopped
+    with: `the server stopped while the job ran; ...`) and, when finished, `rows`
     (one per clip: clip, weight, episodes, mean_ep_len, full_length_frac, mean_return, pos_err_m,
     paper_pos_err_m, paper_dof_vel_err) and their episode-weighted `mean`."""
     return _job(request, job_id).to_json()

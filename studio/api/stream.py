@@ -81,12 +81,12 @@ def _run_list(studio: Any) -> list[dict[str, Any]]:
 
 
 def _eval_list(state: Any) -> list[dict[str, Any]]:
-    jobs = getattr(state, "evals", None)  # made by the first `/api/evals` request: none before
+    jobs = getattr(state, "evals", None)  # made at start-up (or by the first `/api/evals` request)
     return [j.to_json() for j in jobs.list()] if jobs is not None else []
 
 
 def _video_list(state: Any) -> list[dict[str, Any]]:
-    jobs = getattr(state, "videos", None)  # made by the first `/api/videos` request: none before
+    jobs = getattr(state, "videos", None)  # made at start-up (or by the first `/api/videos` request)
     return [j.to_json() for j in jobs.list()] if jobs is not None else []
 
 

@@ -1,5 +1,5 @@
 """MP4 export endpoints: `mimickit video` of a clip or of a checkpoint's policy as a background job,
-its status, and the video. `GET /api/stream`'s `videos` event pushes the job list."""
+its status, stopping it, and the video. `GET /api/stream`'s `videos` event pushes the job list."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from studio.api.scene import _char_for
 from studio.rollout import source_for_checkpoint
 from studio.runs import CHECKPOINT
 from studio.security import confine
+from studio.settings import Settings
 from studio.videos import VIDEO_FILE, VideoJob, VideoJobs
 
 router = APIRouter(prefix="/videos", tags=["videos"], route_class=OneLineErrors)
@@ -46,13 +47,17 @@ class StartVideo(StrictBody):
         return v
 
 
-def jobs_of(request: Request) -> VideoJobs:
-    """The server's video jobs, made on first use (their worker thread starts with them)."""
-    state = request.app.state
+def jobs_in(state: Any, settings: Settings) -> VideoJobs:
+    """The app's video jobs (`state.videos`), made on first use: the server makes them at start-up,
+    listing the jobs recorded under `<runs-dir>/videos/` (their worker thread starts with them)."""
     with _jobs_lock:
         if getattr(state, "videos", None) is None:
-            state.videos = VideoJobs(studio_of(request).settings)
+            state.videos = VideoJobs(settings)
         return state.videos
+
+
+def jobs_of(request: Request) -> VideoJobs:
+    return jobs_in(request.app.state, studio_of(request).settings)
 
 
 def _job(request: Request, job_id: int) -> VideoJob:
@@ -99,15 +104,25 @@ def start_video(body: StartVideo, request: Request) -> dict[str, Any]:
 
 @router.get("")
 def list_videos(request: Request) -> list[dict[str, Any]]:
-    """Every video job of this server, newest first."""
+    """Every video job, newest first: this server's and those a server before it recorded."""
     return [j.to_json() for j in jobs_of(request).list()]
 
 
 @router.get("/{job_id}")
 def get_video(job_id: int, request: Request) -> dict[str, Any]:
-    """`status` (queued, running, finished, failed), `error` (one line), and when finished `bytes` and
-    `download` (the MP4's URL)."""
+    """`status` (queued, running, finished, failed, stopped), `error` (one line), and when finished
+    `bytes` and `download` (the MP4's URL)."""
     return _job(request, job_id).to_json()
+
+
+@router.post("/{job_id}/stop")
+def stop_video(job_id: int, request: Request) -> dict[str, Any]:
+    """Stop a queued job (it never starts) or a running one (its `mimickit video` process group is
+    killed): status `stopped`. 409 when it had already ended."""
+    job = _job(request, job_id)
+    if not jobs_of(request).stop(job_id):
+        raise HTTPException(409, f"video {job_id} has already ended ({job.status})")
+    return job.to_json()
 
 
 @router.get("/{job_id}/file")

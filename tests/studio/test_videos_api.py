@@ -125,3 +125,21 @@ def test_the_time_limit_kills_the_render(tmp_path: Path) -> None:
         assert processes_in(job.folder) == []  # the renderer's process group is gone
     finally:
         jobs.close()
+
+
+def test_a_running_render_is_stopped(studio: StudioProcess) -> None:
+    """`POST /api/videos/{id}/stop`: the renderer's process group is killed, the job ends as stopped."""
+    body = {"clip": str(DEMO_CLIP), "char": str(DEMO_CHAR), "seconds": 60, "width": 1920, "height": 1080}
+    job = studio.post("/api/videos", body).json()
+    folder = Path(job["folder"])
+    wait_for(lambda: studio.get(f"/api/videos/{job['id']}").json()["status"] == "running", 240, "the render running")
+    wait_for(lambda: processes_in(folder), 60, "the renderer in its folder")
+    r = studio.post(f"/api/videos/{job['id']}/stop", json={})
+    assert r.status_code == 200 and r.json()["status"] == "stopped", r.text
+    wait_for(lambda: not processes_in(folder), 20, "the renderer's processes gone")
+    done = studio.get(f"/api/videos/{job['id']}").json()
+    assert done["status"] == "stopped" and done["error"] is None and done["download"] is None
+    assert studio.get(f"/api/videos/{job['id']}/file").status_code == 409
+    again = studio.post(f"/api/videos/{job['id']}/stop", json={})
+    assert again.status_code == 409 and "already ended (stopped)" in again.json()["detail"]
+    assert studio.post("/api/videos/999999/stop", json={}).status_code == 404
