@@ -179,6 +179,8 @@ class Rollout:
         tracks = ghost_id is not None and hasattr(self.env, "body_pos_errors")
         self.body_names: list[str] = self.env.char_model.get_body_names() if tracks else []
         self.reward_weights: dict[str, float] = dict(getattr(self.env, "reward_weights", {}) or {})
+        lib = getattr(self.env, "motion_lib", None)  # the clips it plays (resolved paths); None: an env without
+        self.motion_files: list[str] | None = list(lib.motion_files) if lib is not None else None
         self.history: deque[Frame] = deque(maxlen=max(2, round(history_s / self.dt)))
         st = source.checkpoint.stat()
         self.checkpoint_mtime_ns, self.checkpoint_mtime = st.st_mtime_ns, st.st_mtime
@@ -475,6 +477,7 @@ class RolloutPlayer(Playable):
                 "figures": self.scene.figures() if self.scene is not None else [],  # A/B: both, as drawn
                 "follow_height": s.height,
                 "reward_weights": r.reward_weights,
+                "motion_files": r.motion_files,
                 "history_seconds": len(r.history) * r.dt,
                 "shown": {
                     "step": shown.step,

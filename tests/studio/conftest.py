@@ -157,3 +157,27 @@ def misfit_checkpoint(studio: StudioProcess) -> Path:
     write_checkpoint_dir(folder, save_model=False)
     shutil.copyfile(other, folder / "model.pt")
     return folder / "model.pt"
+
+
+DEMO_CLIP_NAME = "data/motions/humanoid_demo_squat.pkl"
+
+
+def write_demo_dataset(folder: Path, short_frames: int = 45) -> tuple[Path, Path]:
+    """A two-clip dataset yaml the demo humanoid fits: the demo clip (`data/...`, weight 1) and a
+    shortened, non-looping copy of it (`short_squat.pkl` beside the yaml, by absolute path, weight 2),
+    whose episodes end at its end. (dataset, short clip)."""
+    import dataclasses
+
+    import yaml
+
+    from mimickit.anim.motion import LoopMode, load_motion, save_motion
+
+    folder.mkdir(parents=True, exist_ok=True)
+    demo = load_motion(PROJECT_DATA_DIR / "motions" / "humanoid_demo_squat.pkl")
+    assert demo.num_frames > short_frames
+    short = folder / "short_squat.pkl"
+    save_motion(short, dataclasses.replace(demo, frames=demo.frames[:short_frames].copy(), loop_mode=LoopMode.CLAMP))
+    dataset = folder / "two_squats.yaml"
+    entries = [{"file": DEMO_CLIP_NAME, "weight": 1.0}, {"file": str(short), "weight": 2.0}]
+    dataset.write_text(yaml.safe_dump({"motions": entries}, sort_keys=False))
+    return dataset, short

@@ -2,16 +2,18 @@
 started from the page's form runs as a real `mimickit eval` job; the stream pushes its status into the
 same element (updated in place, not rebuilt) until its table appears; a click on a row rolls that clip
 out in the scene (the rollout panel shows); a long eval is stopped from the page; ended jobs are
-deleted from the page."""
+deleted from the page. An eval over a two-clip dataset shows a row per clip and the mean row, and its
+second row rolls out that clip."""
 
 from __future__ import annotations
 
 import shutil
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
-from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for
+from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for, write_demo_dataset
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
 
@@ -113,6 +115,46 @@ def test_an_eval_from_the_page_shows_its_table_and_a_row_rolls_out(page, server:
         assert server.get(f"/api/evals/{gone_id}").status_code == 404
     assert page.locator("#eval-empty").is_visible()
     assert page.errors == []
+
+
+def test_a_dataset_eval_shows_a_row_per_clip_and_the_mean_and_the_second_row_rolls_out_that_clip(
+    page, server: StudioProcess
+) -> None:
+    """An eval over a two-clip dataset (the demo clip and a shortened copy): the page's table has one
+    row per clip and the mean row; a click on the second row rolls out that clip, not the first."""
+    dataset, short = write_demo_dataset(server.runs_dir / "datasets")
+    body = {"checkpoint": SHIPPED, "arg_file": DEMO_ARGS, "motion_file": str(dataset), "episodes": 2}
+    r = server.post("/api/evals", body)
+    assert r.status_code == 201, r.text
+    job_id = r.json()["id"]
+    job = page.locator(f"#eval-list [data-eval-id='{job_id}']")
+    job.wait_for()  # pushed by the stream
+    status = job.locator("[data-field=status]")
+    wait_for(lambda: status.inner_text() in ("finished", "failed"), EVAL_TIMEOUT_S, "the dataset eval to end")
+    assert status.inner_text() == "finished", job.locator("[data-field=error]").inner_text()
+    done = server.get(f"/api/evals/{job_id}").json()
+    rows = job.locator("table.evals tbody tr")
+    wait_for(lambda: rows.count() == 2, 30, "a table row per clip")
+    for i, (clip, row) in enumerate(zip(("humanoid_demo_squat.pkl", short.name), done["rows"], strict=True)):
+        cells = rows.nth(i).locator("td").all_inner_texts()
+        assert cells[:3] == [clip, str(row["episodes"]), f"{row['mean_ep_len']:.1f}"], cells
+    mean = job.locator("table.evals tfoot tr td").all_inner_texts()
+    assert mean[:3] == ["mean of 2", str(done["mean"]["episodes"]), f"{done['mean']['mean_ep_len']:.1f}"], mean
+    assert mean[4] == f"{done['mean']['paper_pos_err_m']:.3f}"
+
+    rows.nth(1).click()
+    state = wait_for(
+        lambda: (s := server.get("/api/scene/state").json())["mode"] == "rollout" and s,
+        ACTION_TIMEOUT_MS / 1000,
+        "the second row's rollout in the scene",
+    )
+    assert [Path(p).resolve() for p in state["rollout"]["motion_files"]] == [short.resolve()]
+    assert state["rollout"]["env_config"].endswith("row1_env_config.yaml")
+    assert "selected" in rows.nth(1).get_attribute("class") and "selected" not in rows.nth(0).get_attribute("class")
+    page.locator("#rollout-panel").wait_for(state="visible")
+    assert page.locator("#eval-error").inner_text() == ""
+    assert page.errors == []
+    server.post("/api/scene/rollout/close")
 
 
 @pytest.fixture(scope="module")
