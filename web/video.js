@@ -1,6 +1,7 @@
 // Export MP4: `mimickit video` of what the scene shows (the clip on its character, or the rollout's
 // checkpoint with its configs), rendered by the server as a background job (POST /api/videos). The
-// job's progress arrives as the stream's `videos` events; when it has finished, a download link.
+// job's progress arrives as the stream's `videos` events, with a Stop button while it waits or renders;
+// when it has finished, a download link.
 import { $, api, el, withToken } from "./api.js";
 import { sceneState } from "./player.js";
 
@@ -37,15 +38,23 @@ function show(job) {
     box.replaceChildren(`MP4 of ${what} ready: `, link, ` (${(job.bytes / 1e6).toFixed(2)} MB, ${job.seconds} s)`);
   } else if (job.status === "failed") {
     box.textContent = `MP4 of ${what} failed: ${job.error}`;
-  } else if (job.status === "running") {
-    const tick = () => {
-      const s = Math.max(0, Date.now() / 1000 - job.started_at);
-      box.textContent = `rendering ${job.seconds} s of ${what} as MP4 (${job.width}×${job.height})… ${s.toFixed(0)} s`;
-    };
-    tick();
-    ticker = setInterval(tick, 1000);
+  } else if (job.status === "stopped") {
+    box.textContent = `MP4 of ${what} stopped`;
   } else {
-    box.textContent = `MP4 of ${what}: waiting for the renderer…`;
+    // Queued or running: the progress and a Stop button (its render's processes are killed).
+    const text = el("span", { id: "video-progress" });
+    const stop = el("button", { id: "video-stop", title: "stop this export (its renderer is killed)", onclick: () => stopVideo(job.id) }, "Stop");
+    box.replaceChildren(text, " ", stop);
+    if (job.status === "running") {
+      const tick = () => {
+        const s = Math.max(0, Date.now() / 1000 - job.started_at);
+        text.textContent = `rendering ${job.seconds} s of ${what} as MP4 (${job.width}×${job.height})… ${s.toFixed(0)} s`;
+      };
+      tick();
+      ticker = setInterval(tick, 1000);
+    } else {
+      text.textContent = `MP4 of ${what}: waiting for the renderer…`;
+    }
   }
   $("export-video").disabled = job.status === "queued" || job.status === "running";
 }
@@ -55,6 +64,15 @@ export function renderVideos(list) {
   jobs = list;
   const job = jobs.find((j) => j.id === mine);
   if (job) show(job);
+}
+
+async function stopVideo(id) {
+  $("video-stop").disabled = true;
+  try {
+    show(await api("POST", `/api/videos/${id}/stop`, {}));
+  } catch (e) {  // it ended meanwhile (409): the stream brings how
+    $("video-status").append(` (${e.message})`);
+  }
 }
 
 async function exportVideo() {

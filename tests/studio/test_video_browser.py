@@ -53,3 +53,29 @@ def test_export_mp4_of_the_clip_gives_a_download_link(browser, server: StudioPro
     assert not page.locator("#export-video").is_disabled()
     assert page.errors == []
     page.close()
+
+
+def test_an_export_waiting_for_the_renderer_is_stopped_from_the_page(browser, server: StudioProcess) -> None:
+    """With the renderer busy (a long export through the API), the page's export waits with a Stop button;
+    Stop ends it (it never starts) and the page says so; the busy one is then stopped through the API."""
+    clip = server.get("/api/scene/state").json()["clip"]
+    body = {"clip": clip, "seconds": 60, "width": 1920, "height": 1080}
+    busy = server.post("/api/videos", body).json()
+    try:
+        page = open_page(browser, server, 1280, 720)
+        page.locator("#export-video").click()
+        stop = page.locator("#video-stop")
+        stop.wait_for()
+        assert "waiting for the renderer" in page.locator("#video-status").inner_text()
+        assert page.locator("#export-video").is_disabled()
+        mine = max(j["id"] for j in server.get("/api/videos").json())
+        assert mine == busy["id"] + 1 and server.get(f"/api/videos/{mine}").json()["status"] == "queued"
+        stop.click()
+        page.locator("#video-status", has_text="stopped").wait_for()
+        assert stop.count() == 0 and not page.locator("#export-video").is_disabled()
+        job = server.get(f"/api/videos/{mine}").json()
+        assert job["status"] == "stopped" and job["started_at"] is None
+        assert page.errors == []
+        page.close()
+    finally:
+        assert server.post(f"/api/videos/{busy['id']}/stop", json={}).json()["status"] == "stopped"
