@@ -7,7 +7,7 @@ machine weighs on both alike (figures, not tests).
 Each round runs `python -m mimickit.cli bench --json ARGS` once in each tree (a fresh process, that tree's
 code first on sys.path; the order flips every round), then prints per round and over all rounds: each
 tree's `ratio` (env step against raw MuJoCo re-running it, when the bench has one) and env steps/s, and
-new/old of both.
+new/old of both; with `--train`, the training samples/s and `train_ratio` too.
 """
 
 from __future__ import annotations
@@ -48,19 +48,22 @@ def main() -> None:
     new_sps = statistics.median(x["env_steps_per_s"] for x in runs["new"])
     summary: dict[str, Any] = {"env_steps_per_s_old": old_sps, "env_steps_per_s_new": new_sps}
     summary["sps_new_over_old"] = round(new_sps / old_sps, 4)
-    if runs["old"][0].get("ratio") is not None:
-        summary["ratio_old"] = [x["ratio"] for x in runs["old"]]
-        summary["ratio_new"] = [x["ratio"] for x in runs["new"]]
-        summary["ratio_new_over_old"] = round(
-            statistics.median(summary["ratio_new"]) / statistics.median(summary["ratio_old"]), 4
+    for key in ("train_samples_per_s", "ratio", "train_ratio"):  # `--train` prints the train_* figures
+        if runs["old"][0].get(key) is None:
+            continue
+        summary[f"{key}_old"] = [x[key] for x in runs["old"]]
+        summary[f"{key}_new"] = [x[key] for x in runs["new"]]
+        summary[f"{key}_new_over_old"] = round(
+            statistics.median(summary[f"{key}_new"]) / statistics.median(summary[f"{key}_old"]), 4
         )
     print(json.dumps(summary))
 
 
 def _line(old: dict[str, Any], new: dict[str, Any]) -> str:
     text = f"env steps/s old {old['env_steps_per_s']:,.0f} new {new['env_steps_per_s']:,.0f}"
-    if old.get("ratio") is not None:
-        text += f"; ratio old {old['ratio']:.3f} new {new['ratio']:.3f}"
+    for key in ("train_samples_per_s", "ratio", "train_ratio"):
+        if old.get(key) is not None:
+            text += f"; {key} old {old[key]:,.3f} new {new[key]:,.3f}"
     return text
 
 

@@ -95,7 +95,9 @@ def _motion_convert(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     from mimickit.tools.bench import format_bench, run_bench
+    from mimickit.util.malloc_tuning import tune_malloc
 
+    tune_malloc()  # as `mimickit train` runs (util/malloc_tuning)
     paths = DataPaths(args.data_dir)
     if args.train:
         if args.steps is not None or args.raw is not None:

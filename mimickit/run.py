@@ -48,6 +48,7 @@ from mimickit.torchrun_env import TorchrunEnv, check_master_port, node_devices, 
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
+from mimickit.util.malloc_tuning import tune_malloc
 from mimickit.util.paths import PROJECT_DATA, DataPaths, atomic_write_bytes
 
 NO_LIMIT = int(np.iinfo(np.int64).max)
@@ -124,6 +125,7 @@ def run(
     base_seed = mp_util.broadcast_int(base_seed)  # torchrun: each process drew its own; rank 0's counts
     seed_everything(args, rank, base_seed)
     torch.set_num_threads(max(1, (os.cpu_count() or 1) // launch["local_world_size"]))
+    tune_malloc()  # this process's malloc: big tensors kept in the heap between steps (util/malloc_tuning)
 
     env, env_info = build_run_env(inputs, args.parse_int("num_envs", 1), device)
     agent = build_agent(inputs.agent_file, env, device)
