@@ -93,7 +93,10 @@ def main() -> None:
     steps = agent.config.steps_per_iter
     agent.start_training()
     agent.train_iteration()  # warm-up (first-call allocations)
-    total = count_flops(agent.train_iteration)
+    try:
+        total = count_flops(agent.train_iteration)
+    except RuntimeError as e:  # torch's counter cannot follow autograd.grad (AMP's gradient penalty)
+        raise SystemExit(f"torch's FLOP counter failed on {a.agent_config}'s iteration: {e}") from None
     obs, _ = env.reset()
     with torch.no_grad():
         rollout = steps * count_flops(lambda: agent.compute_action(obs, deterministic=False))
