@@ -131,6 +131,14 @@ def test_shipped_add_walk_model_walks_the_whole_clip(test_data: Path) -> None:
     assert out["tracking"]["paper_pos_err_m"] < 0.08, out
 
 
+def test_shipped_jog_model_jogs_the_whole_clip(test_data: Path) -> None:
+    """The shipped jog policy keeps every episode to the time limit and tracks the clip within 9 cm by the
+    paper's position error (0.081 over these 4 episodes and over 32)."""
+    out = shipped_model_test("deepmimic_humanoid_jog_model", "--data_dir", str(test_data))
+    assert out["mean_episode_length"] >= 0.9 * 300, out
+    assert out["tracking"]["paper_pos_err_m"] < 0.09, out
+
+
 def test_shipped_demo_model_squats_the_whole_episode() -> None:
     """The shipped demo policy (no MimicKit data needed), tested as its sidecar arg file says, keeps every
     episode to the time limit (the previous demo policy fell after ~3 s, PD tracking alone at 2.8 s)."""
