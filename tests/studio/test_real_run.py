@@ -54,8 +54,11 @@ def test_real_training_run_and_its_rollout(tmp_path: Path) -> None:
             60,
             "the rollout to advance",
         )
-        assert s["mode"] == "rollout" and set(s["rollout"]["reward_terms"]) == TERMS
-        assert all(0.0 <= v <= 1.0 for v in s["rollout"]["reward_terms"].values())
+        # An untrained policy falls often: the frame shown may be an episode's first, which has no reward
+        # yet, so the terms are read at the newest step that has them.
+        latest = s["rollout"]["latest"]["reward_terms"]
+        assert s["mode"] == "rollout" and set(latest) == TERMS
+        assert all(0.0 <= v <= 1.0 for v in latest.values())
 
         done = wait_for(
             lambda: (x := server.get(f"/api/runs/{run_id}").json())["status"] not in ("queued", "running") and x,
