@@ -37,7 +37,7 @@ $(RAY_STAMP): $(STAMP)
 	touch $(RAY_STAMP)
 
 test: setup $(RAY_STAMP) browser
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=25
 
 # The fast subset (under a minute): no subprocess, server, browser, or test that trains to an improvement or
 # takes seconds (markers in pyproject.toml; the guard in tests/conftest.py fails an unmarked test that starts
