@@ -84,6 +84,23 @@ PROJECT_HUMANOID = PROJECT_DATA_DIR / "assets" / "humanoid" / "humanoid.xml"
 DEMO_CLIP = PROJECT_DATA_DIR / "motions" / "humanoid_demo_squat.pkl"
 
 
+def write_shifted_demo_clip(path: Path) -> Path:
+    """Another clip for the humanoid: the demo squat starting at its deepest frame.
+
+    The squat is symmetric in time, so played backwards it is the same clip: shifting by half a cycle
+    is what makes every pose at a given time differ from the demo's."""
+    import numpy as np
+
+    from mimickit.anim.motion import LoopMode, Motion, load_motion, save_motion
+
+    demo = load_motion(DEMO_CLIP)
+    frames = np.roll(demo.frames, -(len(demo.frames) // 2), axis=0)
+    assert np.abs(frames - demo.frames).max() > 0.1
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_motion(path, Motion(LoopMode.CLAMP, demo.fps, np.ascontiguousarray(frames)))
+    return path
+
+
 def test_data_dir() -> Path | None:
     value = os.environ.get("MIMICKIT_TEST_DATA")
     return Path(value).resolve() if value else None

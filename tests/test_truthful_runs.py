@@ -15,12 +15,11 @@ import numpy as np
 import pytest
 import torch
 
-from mimickit.anim.motion import LoopMode, Motion, load_motion, save_motion
 from mimickit.envs.env_config import load_env_configs
 from mimickit.run_folder import ExitCode, RunFolder
 from mimickit.tools.plot_log import read_events, read_log
 from mimickit.util.paths import PROJECT_ROOT
-from tests.conftest import DEMO_CLIP
+from tests.conftest import DEMO_CLIP, write_shifted_demo_clip
 from tests.test_cli_train import ARG_FILE, NUM_ENVS, metrics, mimickit, train_args
 
 pytestmark = pytest.mark.integration
@@ -48,12 +47,8 @@ def baseline(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def reversed_clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Another clip for the humanoid: the demo squat played backwards, clamped."""
-    demo = load_motion(DEMO_CLIP)
-    path = tmp_path_factory.mktemp("clips") / "squat_reversed.pkl"
-    save_motion(path, Motion(LoopMode.CLAMP, demo.fps, np.ascontiguousarray(demo.frames[::-1])))
-    return path
+def shifted_clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_shifted_demo_clip(tmp_path_factory.mktemp("clips") / "squat_shifted.pkl")
 
 
 def test_run_folder_records_args_seed_versions_and_end_state(baseline: Path) -> None:
@@ -94,30 +89,28 @@ def test_recorded_seed_reproduces_every_metrics_row(baseline: Path, tmp_path: Pa
     assert first[1]["critic_loss"] > 0 and first[1]["test_episodes"] > 0  # real values, compared exactly
 
 
-def test_motion_file_replaces_the_env_configs_clip(baseline: Path, reversed_clip: Path, tmp_path: Path) -> None:
-    out = tmp_path / "reversed"
+def test_motion_file_replaces_the_env_configs_clip(baseline: Path, shifted_clip: Path, tmp_path: Path) -> None:
+    out = tmp_path / "shifted"
     seed = str(RunFolder(baseline).read_args()["seed"])
-    r = mimickit(*train_args(out, "--max_samples", TWO_ITERS, "--rand_seed", seed, "--motion_file", str(reversed_clip)))
+    r = mimickit(*train_args(out, "--max_samples", TWO_ITERS, "--rand_seed", seed, "--motion_file", str(shifted_clip)))
     assert r.returncode == 0, r.stderr[-3000:]
     env_cfg, _ = load_env_configs(out / "env_config.yaml", out / "engine_config.yaml")
-    assert env_cfg.motion_file == str(reversed_clip)
+    assert env_cfg.motion_file == str(shifted_clip)
     assert (out / "env_config.yaml").read_text().startswith("# ")  # says it was replaced
     eff = RunFolder(out).read_args()["effective"]
-    assert eff["motion_file"] == str(reversed_clip) and eff["motion_file_from"] == "--motion_file"
+    assert eff["motion_file"] == str(shifted_clip) and eff["motion_file_from"] == "--motion_file"
     # Same seed and env count as the baseline: only the clip differs, and so do the tracking rewards.
     pose = [row["reward_terms.pose"] for row in data_rows(out)]
     assert pose != [row["reward_terms.pose"] for row in data_rows(baseline)]
 
 
-def test_motion_file_in_test_mode_takes_a_clip_or_a_dataset(
-    baseline: Path, reversed_clip: Path, tmp_path: Path
-) -> None:
+def test_motion_file_in_test_mode_takes_a_clip_or_a_dataset(baseline: Path, shifted_clip: Path, tmp_path: Path) -> None:
     dataset = tmp_path / "dataset.yaml"
-    dataset.write_text(f'motions:\n  - file: "{reversed_clip}"\n    weight: 1.0\n')
+    dataset.write_text(f'motions:\n  - file: "{shifted_clip}"\n    weight: 1.0\n')
     common = ["test", "--arg_file", str(ARG_FILE), "--num_envs", "2", "--model_file", str(baseline / "model.pt"),
               "--test_episodes", "2", "--rand_seed", "3", "--json"]  # fmt: skip
     results = []
-    for extra in ([], ["--motion_file", str(reversed_clip)], ["--motion_file", str(dataset)]):
+    for extra in ([], ["--motion_file", str(shifted_clip)], ["--motion_file", str(dataset)]):
         r = mimickit(*common, *extra)
         assert r.returncode == 0, r.stderr[-3000:]
         results.append(json.loads(r.stdout.strip().splitlines()[-1])["tracking"])

@@ -18,14 +18,12 @@ import shutil
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 import yaml
 
-from mimickit.anim.motion import LoopMode, Motion, load_motion, save_motion
 from mimickit.run_folder import ExitCode, RunFolder, is_event_row
 from mimickit.util.paths import PROJECT_ROOT
-from tests.conftest import DEMO_CLIP
+from tests.conftest import write_shifted_demo_clip
 from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for
 
 pytestmark = pytest.mark.integration
@@ -75,12 +73,8 @@ def without_timing(row: dict) -> dict:
 
 @pytest.fixture(scope="module")
 def clip(server: StudioProcess) -> Path:
-    """Another clip for the humanoid (the demo squat backwards), in the runs folder's uploads."""
-    demo = load_motion(DEMO_CLIP)
-    path = server.runs_dir / "uploads" / "squat_reversed.pkl"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_motion(path, Motion(LoopMode.CLAMP, demo.fps, np.ascontiguousarray(demo.frames[::-1])))
-    return path
+    """Another clip for the humanoid, in the runs folder's uploads."""
+    return write_shifted_demo_clip(server.runs_dir / "uploads" / "squat_shifted.pkl")
 
 
 @pytest.fixture(scope="module")
