@@ -160,6 +160,14 @@ def test_shipped_g1_walk_model_walks_the_whole_clip(test_data: Path) -> None:
     assert out["tracking"]["paper_pos_err_m"] < 0.03, out
 
 
+def test_shipped_go2_pace_model_paces_the_whole_clip(test_data: Path) -> None:
+    """The shipped Go2 pace policy (MimicKit's reference PD gains) keeps every episode to the time limit (512
+    of 512 over 4 and 32 envs) and tracks the clip within 1.5 cm by the paper's position error (0.011)."""
+    out = shipped_model_test("deepmimic_go2_pace_model", "--data_dir", str(test_data))
+    assert out["mean_episode_length"] == 300, out
+    assert out["tracking"]["paper_pos_err_m"] < 0.015, out
+
+
 def test_shipped_demo_model_squats_the_whole_episode() -> None:
     """The shipped demo policy (no MimicKit data needed), tested as its sidecar arg file says, keeps every
     episode to the time limit (the previous demo policy fell after ~3 s, PD tracking alone at 2.8 s)."""
