@@ -10,12 +10,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import DataPaths
+from mimickit.util.warn import one_line_warnings
 
 DEFAULT_BENCH_AGENT = "data/agents/deepmimic_humanoid_ppo_cpu_agent.yaml"
 
@@ -317,8 +317,7 @@ def run_cli(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("default")
+        with one_line_warnings():
             return func(args)
     except MimicKitError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -50,6 +50,7 @@ from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
 from mimickit.util.malloc_tuning import tune_malloc
 from mimickit.util.paths import PROJECT_DATA, DataPaths, atomic_write_bytes
+from mimickit.util.warn import one_line_warnings
 
 NO_LIMIT = int(np.iinfo(np.int64).max)
 REFUSAL_WAIT_S = 10.0
@@ -398,7 +399,8 @@ def spawn_launch(devices: list[str]) -> dict[str, Any]:
 
 
 def _worker(rank: int, devices: list[str], port: int, argv: list[str], seed: int) -> None:
-    run(rank, len(devices), devices[rank], port, argv, seed, spawn_launch(devices))
+    with one_line_warnings():
+        run(rank, len(devices), devices[rank], port, argv, seed, spawn_launch(devices))
 
 
 def _run_spawned(args: ArgParser, argv: list[str], seed: int) -> dict[str, Any] | int:
@@ -441,7 +443,11 @@ def _print_refusal(e: MimicKitError, tenv: TorchrunEnv | None) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    with one_line_warnings():
+        return _main(list(sys.argv[1:] if argv is None else argv))
+
+
+def _main(argv: list[str]) -> int:
     tenv: TorchrunEnv | None = None
     try:
         tenv = read_torchrun_env()

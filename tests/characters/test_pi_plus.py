@@ -5,6 +5,8 @@ studio's library and scene find PI+ for its clip."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -128,6 +130,17 @@ def test_arg_files_build_their_env(arg_file: str, pi_data: Path) -> None:
     assert agent.get_obs_size() == env.get_obs_space().shape[0]
     action = agent.compute_action(obs)
     assert action.shape == (2, DOFS) and torch.isfinite(action).all()
+
+
+@pytest.mark.integration
+def test_the_command_line_says_what_was_dropped_once_on_one_line(pi_data: Path, tmp_path: Path) -> None:
+    """The MJCF loader and the engine both load the character, and both warn of its missing meshes."""
+    cmd = [sys.executable, "-m", "mimickit.cli", "test", "--arg_file", "args/deepmimic_pi_plus_walk_ppo_args.txt"]
+    cmd += ["--data_dir", str(pi_data), "--num_envs", "1", "--test_episodes", "1", "--out_dir", str(tmp_path)]
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=PROJECT_ROOT)
+    assert r.returncode == 0, r.stderr
+    lines = [line for line in r.stderr.splitlines() if "mesh file(s) missing" in line or "Warning" in line]
+    assert len(lines) == 1 and lines[0].startswith(f"warning: {pi_data / ASSET}: 32 mesh file(s) missing"), r.stderr
 
 
 def test_studio_library_guesses_pi_plus_for_its_clip(pi_data: Path, tmp_path: Path) -> None:
