@@ -3,7 +3,8 @@
     python benchmarks/zoo_test.py --data_dir ../shared/data --episodes 256 --num_envs 4 32
 
 Each policy runs `mimickit test` with its sidecar arg file once per --num_envs value, with the same seed;
-a row adds the runs up: mean episode length, episodes that reached the time limit, the paper's errors.
+a row adds the runs up: mean episode length, episodes that reached the end (the time limit, or the end of a
+clip that does not loop: DeepMimic ends those episodes as a success there), the paper's errors.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def test_once(name: str, num_envs: int, args: argparse.Namespace) -> dict:
 
 def row(name: str, runs: list[dict]) -> str:
     episodes = sum(r["episodes"] for r in runs)
-    full = sum(r["episode_ends"]["time"] for r in runs)
+    full = sum(r["episode_ends"]["time"] + r["episode_ends"]["succ"] for r in runs)
 
     def mean(key: str, tracking: bool = True) -> float:
         return sum((r["tracking"] if tracking else r)[key] * r["episodes"] for r in runs) / episodes
@@ -53,7 +54,7 @@ def main() -> None:
     p.add_argument("--models", nargs="*", help="names without .pt (default: every model in data/models)")
     args = p.parse_args()
     names = args.models or sorted(m.stem for m in MODELS.glob("*_model.pt"))
-    print("| policy | mean episode length | to the time limit | paper_pos_err_m | paper_dof_vel_err |")
+    print("| policy | mean episode length | to the end (time limit or clip end) | paper_pos_err_m | paper_dof_vel_err |")
     print("|---|---|---|---|---|")
     for name in names:
         print(row(name, [test_once(name, n, args) for n in args.num_envs]), flush=True)

@@ -59,11 +59,13 @@ class AgentMode(IntEnum):
 
 @dataclass
 class EpisodeStats:
-    """Undiscounted mean return and length (steps) of finished episodes, over all processes."""
+    """Undiscounted mean return and length (steps) of finished episodes, over all processes, and how many
+    of them ended in failure (`num_fail`)."""
 
     mean_return: float = 0.0
     mean_ep_len: float = 0.0
     num_eps: int = 0
+    num_fail: int = 0
 
     def to_dict(self) -> dict[str, float | int]:
         """For printing / JSON: `mean_return`, `mean_episode_length`, `episodes`."""
@@ -344,6 +346,8 @@ class BaseAgent(nn.Module, abc.ABC):
         logger.log("Test_Return", test.mean_return, collection="0_Main")
         logger.log("Test_Episode_Length", test.mean_ep_len, collection="0_Main", quiet=True)
         logger.log("Test_Episodes", test.num_eps, collection="1_Info", quiet=True)
+        # Episodes may end early without a fall (a clip that does not loop ends them as a success).
+        logger.log("Test_Fail_Frac", test.num_fail / max(test.num_eps, 1), collection="0_Main", quiet=True)
         info = dict(train_info)
         logger.log("Train_Return", info.pop("mean_return"), collection="0_Main")
         logger.log("Train_Episode_Length", info.pop("mean_ep_len"), collection="0_Main", quiet=True)
@@ -495,7 +499,9 @@ class BaseAgent(nn.Module, abc.ABC):
             self._curr_obs, self._curr_info = self._reset_done_envs(next_obs, next_info, done)
             if bool((tracker.get_eps_per_env() >= min_eps_per_env).all()):
                 break
-        return EpisodeStats(tracker.get_mean_return(), tracker.get_mean_ep_len(), tracker.get_episodes())
+        return EpisodeStats(
+            tracker.get_mean_return(), tracker.get_mean_ep_len(), tracker.get_episodes(), tracker.get_failed_episodes()
+        )
 
     def _reset_done_envs(
         self, obs: torch.Tensor, info: dict[str, Any], done: torch.Tensor
@@ -579,7 +585,7 @@ class BaseAgent(nn.Module, abc.ABC):
         self._sample_count = state["samples"]
         self._wall_time_offset = state["wall_time_hours"]
         test = state["test"]
-        self._last_test = EpisodeStats(test["mean_return"], test["mean_ep_len"], test["num_eps"])
+        self._last_test = EpisodeStats(test["mean_return"], test["mean_ep_len"], test["num_eps"], test["num_fail"])
         self._resumed = True
 
 
@@ -588,12 +594,15 @@ def _reduce_episode_stats(local: EpisodeStats) -> EpisodeStats:
     if not mp_util.enable_mp():
         return local
     vals = torch.tensor(
-        [local.mean_return * local.num_eps, local.mean_ep_len * local.num_eps, float(local.num_eps)],
+        [
+            local.mean_return * local.num_eps, local.mean_ep_len * local.num_eps, float(local.num_eps),
+            float(local.num_fail),
+        ],
         dtype=torch.float64,
         device=mp_util.get_device(),
-    )
+    )  # fmt: skip
     vals = mp_util.reduce_sum(vals).cpu().tolist()
     n = int(round(vals[2]))
     if n == 0:
         return EpisodeStats()
-    return EpisodeStats(vals[0] / n, vals[1] / n, n)
+    return EpisodeStats(vals[0] / n, vals[1] / n, n, int(round(vals[3])))

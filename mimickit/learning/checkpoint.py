@@ -122,6 +122,7 @@ def check_train_state(ts: Any, source: str | Path) -> dict[str, Any]:
         "mean_return": _float_field(test, "mean_return", 0.0, f"{where}.test"),
         "mean_ep_len": _float_field(test, "mean_ep_len", 0.0, f"{where}.test", minimum=0.0),
         "num_eps": _int_field(test, "num_eps", 0, f"{where}.test"),
+        "num_fail": _int_field(test, "num_fail", 0, f"{where}.test"),  # absent before 2026-12-04
     }
     out["optimizers"] = _check_optimizers(ts.get("optimizers", {}), where)
     return out
@@ -190,7 +191,7 @@ def make_train_state(
     test: Mapping[str, float | int],
     optimizers: Mapping[str, Any],
 ) -> dict[str, Any]:
-    """The `_train_state` record; `test` has `mean_return`, `mean_ep_len`, `num_eps`; `optimizers`
+    """The `_train_state` record; `test` has `mean_return`, `mean_ep_len`, `num_eps`, `num_fail`; `optimizers`
     maps names to objects with `state_dict()`."""
     return {
         "format": TRAIN_STATE_FORMAT,

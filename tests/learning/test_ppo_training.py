@@ -14,7 +14,7 @@ from mimickit.learning.base_agent import TRAIN_STATE_KEY, BaseAgent
 from mimickit.learning.dummy_agent import DummyAgent
 from mimickit.util.errors import MimicKitError
 from tests.learning.conftest import awr_config_dict, ppo_config_dict
-from tests.learning.toy_env import TargetReachEnv
+from tests.learning.toy_env import ACTION_LIMIT, TargetReachEnv
 
 NUM_ENVS = 32
 SAMPLES_PER_ITER = NUM_ENVS * 20
@@ -48,8 +48,9 @@ def test_ppo_improves_and_writes_all_outputs(tmp_path):
 
     lines = (tmp_path / "log.txt").read_text().splitlines()
     header = lines[0].split()
-    assert header[:10] == ["Iteration", "Wall_Time", "Samples", "Test_Return", "Test_Episode_Length", "Test_Episodes",
-                           "Train_Return", "Train_Episode_Length", "Train_Episodes", "Critic_Loss"]  # fmt: skip
+    assert header[:11] == ["Iteration", "Wall_Time", "Samples", "Test_Return", "Test_Episode_Length", "Test_Episodes",
+                           "Test_Fail_Frac", "Train_Return", "Train_Episode_Length", "Train_Episodes",
+                           "Critic_Loss"]  # fmt: skip
     assert header[-3:] == ["Obs_Norm_Mean", "Obs_Norm_Std", "Exp_Prob"]
     assert [int(line.split()[0]) for line in lines[1:]] == [0, 5, 10, 15]
     assert all(len(line.split()) == len(header) for line in lines[1:])
@@ -57,6 +58,28 @@ def test_ppo_improves_and_writes_all_outputs(tmp_path):
     assert list(tmp_path.glob("events.out.tfevents.*"))
     assert (tmp_path / "model.pt").is_file()
     assert sorted(p.name for p in (tmp_path / "int_models").iterdir()) == [f"model_{i:010d}.pt" for i in (0, 5, 10, 15)]
+
+
+class DriftEnv(TargetReachEnv):
+    """The toy env with the point blown along +x at the action limit whatever the policy does: it leaves the
+    arena within 15 steps, before the 20-step limit, so every episode ends in FAIL."""
+
+    def step(self, action):
+        return super().step(torch.full_like(action, ACTION_LIMIT))
+
+
+@pytest.mark.parametrize(
+    ("env", "fail_frac"), [(TargetReachEnv(NUM_ENVS, episode_steps=3), 0.0), (DriftEnv(NUM_ENVS), 1.0)]
+)
+def test_the_periodic_test_logs_the_share_of_episodes_that_failed(tmp_path, env, fail_frac):
+    """A short mean test length need not be a fall (a clip that does not loop ends its episodes as a success):
+    the test counts FAIL endings. Three steps cannot leave the arena; the drift always does."""
+    agent = make_ppo(env=env)
+    stats = agent.test_model(NUM_ENVS)
+    assert stats.num_eps >= NUM_ENVS and stats.num_fail == fail_frac * stats.num_eps
+    agent.train_model(SAMPLES_PER_ITER, tmp_path)
+    (row,) = read_metrics(tmp_path / "metrics.jsonl")
+    assert row["test_fail_frac"] == fail_frac and row["test_episodes"] >= NUM_ENVS
 
 
 def test_checkpoint_keys_strict_load_and_same_test_actions(tmp_path):
