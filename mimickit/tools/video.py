@@ -9,8 +9,10 @@ Both sources run through the project's own envs, so a video shows exactly what t
 Either engine: frames are rendered from the engine's `mujoco_view` (its MuJoCo model of the scene and
 env 0's MjData), with the character and the ghost found by the env's object ids. The camera follows the
 character's root in the ground plane at a fixed height (as the reference's `track` camera), centred
-between character and ghost when there is one. Rendering needs an offscreen OpenGL: EGL, else OSMesa
-(`select_gl_backend`).
+between character and ghost when there is one; its distance and height scale with the character's root height
+in the first frame, so that a small robot fills the frame as the humanoid does. Bodies that have no geom to
+draw (an MJCF whose meshes are missing, such as MimicKit's PI+) are drawn as capsule bones to their parent.
+Rendering needs an offscreen OpenGL: EGL, else OSMesa (`select_gl_backend`).
 """
 
 from __future__ import annotations
@@ -43,10 +45,15 @@ from mimickit.util.paths import PROJECT_DATA, PROJECT_DATA_DIR, DataPaths
 GL_BACKENDS = ("egl", "osmesa")
 GHOST_ALPHA = 0.4
 CAMERA_DISTANCE = 3.0  # m: a standing humanoid fills about half the frame height
-CAMERA_DISTANCE_GHOST = 4.5  # m: character and ghost (2 m apart in the humanoid configs) fit a 4:3 frame
+CAMERA_DISTANCE_GHOST = 4.5  # m: character and ghost (GHOST_OFFSET apart) fit a 4:3 frame
+GHOST_OFFSET = 2.0  # m: the humanoid configs' ref_char_offset
 CAMERA_ELEVATION = -18.0  # degrees
 CAMERA_AZIMUTH = 90.0  # degrees: looking along +y, the side view of MimicKit's camera (it starts at y − 5)
 LOOKAT_HEIGHT = 0.9  # m
+HUMANOID_ROOT_HEIGHT = 0.9  # m: the camera's figures are for a character whose root starts this high
+CAMERA_SCALE_RANGE = (0.3, 2.0)
+BONE_RADIUS = 0.025  # of the humanoid-sized character, scaled as the camera
+BONE_RGBA = np.array([0.6, 0.6, 0.6, 1.0], dtype=np.float32)  # a character with no geom to take a colour from
 GRID_HALF_SIZE, GRID_STEP = 8, 1.0  # floor lines around the camera target, so that motion is visible
 GRID_RGBA = np.array([0.55, 0.58, 0.62, 1.0], dtype=np.float32)
 HEADLIGHT_AMBIENT, HEADLIGHT_DIFFUSE = 0.35, 0.6
@@ -130,7 +137,15 @@ def _use_backend(name: str) -> None:
 class TrackingRenderer:
     """Renders an MjData [H, W, 3] uint8 with a camera that follows `root_body` (and the ghost's root)."""
 
-    def __init__(self, model: mujoco.MjModel, width: int, height: int, root_body: int, ghost_root: int | None) -> None:
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        width: int,
+        height: int,
+        root_body: int,
+        ghost_root: int | None,
+        bones: list[Bone] | None = None,
+    ) -> None:
         model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
         model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
         model.vis.headlight.ambient[:] = HEADLIGHT_AMBIENT  # the scene has no lights of its own
@@ -139,23 +154,69 @@ class TrackingRenderer:
             self._renderer = mujoco.Renderer(model, height, width)
         except Exception as e:  # noqa: BLE001 - any GL failure is one user-facing error
             raise MimicKitError(f"cannot start offscreen rendering ({e.__class__.__name__}: {e})") from None
-        self._root, self._ghost = root_body, ghost_root
+        self._root, self._ghost, self._bones = root_body, ghost_root, bones or []
+        self._scale: float | None = None  # set from the first frame's root height
         self._camera = mujoco.MjvCamera()
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FREE
-        self._camera.distance = CAMERA_DISTANCE if ghost_root is None else CAMERA_DISTANCE_GHOST
         self._camera.elevation = CAMERA_ELEVATION
         self._camera.azimuth = CAMERA_AZIMUTH
 
     def render(self, data: mujoco.MjData) -> np.ndarray:
+        if self._scale is None:
+            self._scale = float(np.clip(data.xpos[self._root, 2] / HUMANOID_ROOT_HEIGHT, *CAMERA_SCALE_RANGE))
+            self._camera.distance = CAMERA_DISTANCE * self._scale
+            if self._ghost is not None:  # back off as the humanoid's camera does for a ghost 2 m away
+                apart = float(np.linalg.norm(data.xpos[self._ghost, :2] - data.xpos[self._root, :2]))
+                self._camera.distance += (CAMERA_DISTANCE_GHOST - CAMERA_DISTANCE) * apart / GHOST_OFFSET
         roots = [self._root] if self._ghost is None else [self._root, self._ghost]
         centre = data.xpos[roots, :2].mean(axis=0)
-        self._camera.lookat[:] = (centre[0], centre[1], LOOKAT_HEIGHT)
+        self._camera.lookat[:] = (centre[0], centre[1], LOOKAT_HEIGHT * self._scale)
         self._renderer.update_scene(data, self._camera)
+        _add_bones(self._renderer.scene, data, self._bones, BONE_RADIUS * self._scale)
         _add_floor_grid(self._renderer.scene, centre)
         return self._renderer.render()
 
     def close(self) -> None:
         self._renderer.close()
+
+
+@dataclass(frozen=True)
+class Bone:
+    """A capsule drawn from body `parent` to body `child` (world positions of the frame), coloured `rgba`."""
+
+    parent: int
+    child: int
+    rgba: np.ndarray
+
+
+def stand_in_bones(model: mujoco.MjModel, bodies: np.ndarray) -> list[Bone]:
+    """Bones for the parent-child links of `bodies` (one character) where either end has no visible geom;
+    coloured as the character's visible geoms, else grey. None for a character whose bodies all show."""
+    visible = model.geom_rgba[:, 3] > 0
+    shown = np.zeros(model.nbody, dtype=bool)
+    shown[model.geom_bodyid[visible]] = True
+    own = np.flatnonzero(np.isin(model.geom_bodyid, bodies) & visible)
+    rgba = model.geom_rgba[own[0]].copy() if len(own) else BONE_RGBA
+    members = set(int(b) for b in bodies)
+    bones = []
+    for b in bodies:
+        parent = int(model.body_parentid[b])
+        if parent in members and not (shown[b] and shown[parent]):
+            bones.append(Bone(parent, int(b), rgba))
+    return bones
+
+
+def _add_bones(scene: mujoco.MjvScene, data: mujoco.MjData, bones: list[Bone], radius: float) -> None:
+    for bone in bones:
+        a, b = data.xpos[bone.parent], data.xpos[bone.child]
+        if scene.ngeom >= scene.maxgeom:
+            return
+        if np.linalg.norm(b - a) < 1e-4:  # a body fixed at its parent's origin (the PI+'s head)
+            continue
+        g = scene.geoms[scene.ngeom]
+        mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), np.eye(3).ravel(), bone.rgba)
+        mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, radius, a, b)
+        scene.ngeom += 1
 
 
 def _add_floor_grid(scene: mujoco.MjvScene, centre: np.ndarray) -> None:
@@ -248,9 +309,8 @@ def motion_video(motion_file: str | Path, char_file: str | Path, out: str | Path
         model, char = view.model, view.objects[env.get_char_id()].body_ids
         model.geom_rgba[np.isin(model.geom_bodyid, char), :3] = CHAR_COLOR  # the policy video's colour
         fps = 1.0 / env.engine.get_timestep()
-        frames = _motion_frames(
-            env, TrackingRenderer(model, opts.width, opts.height, int(char[0]), None), opts.num_frames(fps)
-        )
+        renderer = TrackingRenderer(model, opts.width, opts.height, int(char[0]), None, stand_in_bones(model, char))
+        frames = _motion_frames(env, renderer, opts.num_frames(fps))
         return _record(out, frames, fps, opts, backend)
     finally:
         env.engine.close()
@@ -292,7 +352,8 @@ def policy_video(
         ghost = view.objects[ghost_id].body_ids if ghost_id is not None else np.zeros(0, dtype=np.int64)
         make_ghost(model, ghost)
         ghost_root = int(ghost[0]) if len(ghost) else None
-        renderer = TrackingRenderer(model, opts.width, opts.height, int(char[0]), ghost_root)
+        bones = stand_in_bones(model, char) + stand_in_bones(model, ghost)
+        renderer = TrackingRenderer(model, opts.width, opts.height, int(char[0]), ghost_root, bones)
         fps = 1.0 / env.engine.get_timestep()
         return _record(out, _policy_frames(env, agent, renderer, opts.num_frames(fps)), fps, opts, backend)
     finally:

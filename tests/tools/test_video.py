@@ -13,7 +13,7 @@ import pytest
 
 from mimickit.tools.video import VideoOptions, motion_video, select_gl_backend
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, DataPaths
 from tests.conftest import DEMO_CLIP, PROJECT_HUMANOID
 
 pytestmark = pytest.mark.integration
@@ -81,3 +81,23 @@ def test_video_argument_errors(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     args = ["video", "--motion", str(DEMO_CLIP), "--char", str(PROJECT_HUMANOID), "--out", str(tmp_path / "v.gif")]
     assert cli.main(args) == 2
     assert "error: --out must be an .mp4 file" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_character_without_its_meshes_is_drawn_with_bones_and_framed(test_data: Path, tmp_path: Path) -> None:
+    """MimicKit's PI+ (0.39 m root height) has no mesh files in its data: without bones only its foot boxes
+    show (rows 82-105 of 120 in the first frame, 396 pixels); with them the figure spans more than half the
+    frame's height (rows 42-105, 836 pixels), framed by a camera scaled to its size."""
+    char, clip = (
+        test_data / "assets/hightorque_pi_plus/pi_22dof.xml",
+        test_data / "motions/hightorque_pi_plus/pi_plus_walk.pkl",
+    )
+    if not char.is_file() or not clip.is_file():
+        pytest.skip(f"no PI+ asset and clip under {test_data}")
+    out = tmp_path / "pi.mp4"
+    with pytest.warns(UserWarning, match="mesh file"):
+        motion_video(clip, char, out, VideoOptions(0.2, W, H, data_paths=DataPaths(test_data)))
+    _, frames = decode(out)
+    r, g, b = (frames[0][..., i].astype(int) for i in range(3))
+    rows = np.flatnonzero(((b > r + 40) & (b > g + 25)).any(axis=1))
+    assert rows.max() - rows.min() > 0.4 * H, (rows.min(), rows.max())
