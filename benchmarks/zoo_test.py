@@ -54,7 +54,8 @@ def main() -> None:
     p.add_argument("--models", nargs="*", help="names without .pt (default: every model in data/models)")
     args = p.parse_args()
     names = args.models or sorted(m.stem for m in MODELS.glob("*_model.pt"))
-    print("| policy | mean episode length | to the end (time limit or clip end) | paper_pos_err_m | paper_dof_vel_err |")
+    ends = "to the end (time limit or clip's end)"
+    print(f"| policy | mean episode length | {ends} | paper_pos_err_m | paper_dof_vel_err |")
     print("|---|---|---|---|---|")
     for name in names:
         print(row(name, [test_once(name, n, args) for n in args.num_envs]), flush=True)

@@ -471,6 +471,8 @@ def _main(argv: list[str]) -> int:
         print(f"Mean Return: {result['mean_return']:.4f}")
         print(f"Mean Episode Length: {result['mean_episode_length']:.2f}")
         print(f"Episodes: {result['episodes']}")
+        if result.get("episode_ends"):  # a clip that does not loop ends episodes early as a success, not a fall
+            print("Episode Ends: " + ", ".join(f"{k} {v}" for k, v in result["episode_ends"].items()))
         for k, v in result.get("tracking", {}).items():
             print(f"Tracking {k}: {v:.4f}")
     return ExitCode.OK

@@ -117,6 +117,19 @@ def shipped_model_test(name: str, *extra: str) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def test_test_text_says_how_the_episodes_ended() -> None:
+    """Without --json, `mimickit test` says how its episodes ended (a clip that does not loop ends them
+    early as a success, so the mean length alone does not say whether the policy fell)."""
+    r = mimickit(
+        "test", "--arg_file", str(PROJECT_ROOT / "data/models/deepmimic_humanoid_demo_model.txt"), "--num_envs", "2",
+        "--model_file", str(PROJECT_ROOT / "data/models/deepmimic_humanoid_demo_model.pt"), "--test_episodes", "2",
+        "--rand_seed", "0",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    lines = dict(line.split(": ", 1) for line in r.stdout.splitlines() if ": " in line)
+    assert lines["Episode Ends"] == f"fail 0, succ 0, time {lines['Episodes']}", r.stdout
+
+
 def test_shipped_walk_model_walks_the_whole_clip(test_data: Path) -> None:
     """The shipped walk policy, tested as its sidecar arg file says, keeps every episode to the time
     limit (an untrained policy falls within ~1 s) and tracks the clip within 5 cm by the paper's
