@@ -95,6 +95,7 @@ def _from_metrics(folder: RunFolder) -> dict[str, Any]:
     iterations = [r for r in rows if not is_event_row(r)]
     last = iterations[-1] if iterations else {}
     tested = [r for r in iterations if _finite(r.get("test_return"))]
+    fail_frac = tested[-1].get("test_fail_frac") if tested else None
     hours = last.get("wall_time")
     return {
         "samples": _int(last.get("samples")),
@@ -102,6 +103,9 @@ def _from_metrics(folder: RunFolder) -> dict[str, Any]:
         "elapsed_s": hours * 3600.0 if _finite(hours) else None,  # the trainer's wall_time is in hours
         "samples_per_s": last.get("time.samples_per_s") if _finite(last.get("time.samples_per_s")) else None,
         "test_return": tested[-1]["test_return"] if tested else None,
+        # The share of the last test's episodes that fell: a clip that does not loop ends episodes early
+        # without a fall, so the return and length alone can read as one. None from trainers before it.
+        "test_fail_frac": fail_frac if _finite(fail_frac) else None,
     }
 
 

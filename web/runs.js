@@ -146,7 +146,7 @@ function buildRunNode(run) {
     el("div", {}, el("label", { class: "compare-tick", onclick: (ev) => ev.stopPropagation() }, f.compare), f.title, " ", field("status")),
     el("div", { class: "meta" }, field("clip"), " on ", field("char"), " · ", field("envs"), " · seed ", field("seed")),
     el("div", { class: "meta" }, f.progress, " ", field("samples")),
-    el("div", { class: "meta" }, field("elapsed"), " · ", field("rate"), " · test return ", field("test-return"), f.resumes),
+    el("div", { class: "meta" }, field("elapsed"), " · ", field("rate"), " · test return ", field("test-return"), " · falls ", field("test-falls"), f.resumes),
     el("div", { class: "meta" }, field("sweep")),
     f.reason,
     el("div", { class: "actions" },
@@ -158,6 +158,7 @@ function buildRunNode(run) {
       act("Evaluate", (r) => startEval({ run_id: r.id })),
       act("Delete", (r) => deleteRun(r)),
       act("Compare sweep", (r) => compareSweep(r.sweep_id))));
+  f["test-falls"].title = "share of the last test's episodes that ended in a fall (a clip that does not loop ends episodes early without one)";
   return entry;
 }
 
@@ -183,6 +184,7 @@ function updateRunNode({ run, node, fields: f }) {
   set(f.elapsed, duration(s.elapsed_s));
   set(f.rate, `${s.samples_per_s ? s.samples_per_s.toFixed(0) : "–"} samples/s`);
   set(f["test-return"], s.test_return !== null && s.test_return !== undefined ? s.test_return.toFixed(2) : "–");
+  set(f["test-falls"], s.test_fail_frac !== null && s.test_fail_frac !== undefined ? `${Math.round(100 * s.test_fail_frac)}%` : "–");
   set(f.resumes, s.resumes ? ` · resumed ${s.resumes}×` : "");
   set(f.reason, run.reason || "");
   f.reason.hidden = !run.reason;

@@ -111,6 +111,7 @@ def test_every_launch_field_reaches_the_trainer(fields_run: dict, clip: Path) ->
     assert s["end_state"] == "finished" and fields_run["reason"].startswith("reached max_samples 256")
     assert math.isfinite(s["test_return"]) and s["elapsed_s"] > 0 and s["samples_per_s"] > 0
     assert s["test_return"] == fields_run["rows"][-1]["test_return"]
+    assert s["test_fail_frac"] == fields_run["rows"][-1]["test_fail_frac"] and 0.0 <= s["test_fail_frac"] <= 1.0
 
 
 def test_again_with_this_seed_repeats_the_rows(server: StudioProcess, fields_run: dict) -> None:
@@ -240,6 +241,7 @@ def test_the_run_list_shows_seed_progress_and_end_state(
             assert field("clip").inner_text() == clip.name and field("envs").inner_text() == "4 envs"
             assert field("char").inner_text() == "humanoid.xml" and "resumed 1×" in item.inner_text()
             assert field("test-return").inner_text() == f"{resumed_run['summary']['test_return']:.2f}"
+            assert field("test-falls").inner_text() == f"{round(100 * resumed_run['summary']['test_fail_frac'])}%"
 
             bad = page.locator(f"[data-run-id='{diverged_run['id']}']")
             assert bad.locator("[data-field=status]").inner_text() == "diverged"
