@@ -131,6 +131,9 @@ def test_launch_and_stop_a_run_from_the_page(page, studio: StudioProcess, tmp_pa
     item.locator(".status.stopped").wait_for(timeout=10_000)
     page.locator(f"[data-run-id='{run['id']}'] button[data-action=delete]").click()
     wait_for(lambda: studio.get(f"/api/runs/{run['id']}").status_code == 404, what="deleted after confirm")
+    # The page's own DELETE must have come back too: a reload while it is in flight (the next test's) aborts
+    # it, the page alerts "Failed to fetch", and that alert, raised mid-navigation, blocks the reload.
+    item.wait_for(state="detached")
 
 
 def test_rollout_in_the_browser(page, studio: StudioProcess, demo_checkpoint: Path, tmp_path: Path) -> None:
