@@ -21,7 +21,7 @@ import uvicorn
 
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import DataPaths
-from mimickit.util.warn import collect_warnings
+from mimickit.util.warn import one_line_warnings
 from studio.executors.base import EXECUTORS
 from studio.security import new_token
 from studio.settings import DEFAULT_TRAINER, DEMO_CLIP, Settings, parse_trainer
@@ -142,6 +142,11 @@ def sweep(args: argparse.Namespace) -> int:
 
 
 def export_replay(args: argparse.Namespace) -> int:
+    with one_line_warnings():  # e.g. a clip's NaN columns, warned of by the character guess and the replay: once
+        return _export_replay(args)
+
+
+def _export_replay(args: argparse.Namespace) -> int:
     from studio import replay  # imports viser, torch, mujoco: only when asked
 
     if bool(args.motion) == bool(args.model_file):
@@ -150,11 +155,8 @@ def export_replay(args: argparse.Namespace) -> int:
     replay.check_output(args.out)
     if args.motion:
         clip = paths.resolve(args.motion)
-        with collect_warnings() as caught:  # e.g. NaN columns read as 0: one line each
-            char = paths.resolve(args.char) if args.char else _guess_char(clip, paths)
-            info = replay.export_clip_replay(clip, char, args.out, follow=not args.no_follow)
-        for message in caught:
-            print(f"warning: {message}", file=sys.stderr)
+        char = paths.resolve(args.char) if args.char else _guess_char(clip, paths)
+        info = replay.export_clip_replay(clip, char, args.out, follow=not args.no_follow)
     else:
         from studio.rollout import source_for_checkpoint
 

@@ -191,7 +191,7 @@ class Bone:
 
 def stand_in_bones(model: mujoco.MjModel, bodies: np.ndarray) -> list[Bone]:
     """Bones for the parent-child links of `bodies` (one character) where either end has no visible geom;
-    coloured as the character's visible geoms, else grey. None for a character whose bodies all show."""
+    coloured as the character's visible geoms, else grey. Empty for a character whose bodies all show."""
     visible = model.geom_rgba[:, 3] > 0
     shown = np.zeros(model.nbody, dtype=bool)
     shown[model.geom_bodyid[visible]] = True

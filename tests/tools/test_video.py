@@ -30,10 +30,14 @@ def decode(path: Path) -> tuple[dict, list[np.ndarray]]:
     return meta, [np.frombuffer(f, dtype=np.uint8).reshape(h, w, 3) for f in reader]
 
 
-def character_pixels(frame: np.ndarray) -> int:
-    """Pixels of the blue character (CHAR_COLOR under the headlight): blue well above red and green."""
+def character_mask(frame: np.ndarray) -> np.ndarray:
+    """[H, W] True on the blue character (CHAR_COLOR under the headlight): blue well above red and green."""
     r, g, b = (frame[..., i].astype(int) for i in range(3))
-    return int(((b > r + 40) & (b > g + 25)).sum())
+    return (b > r + 40) & (b > g + 25)
+
+
+def character_pixels(frame: np.ndarray) -> int:
+    return int(character_mask(frame).sum())
 
 
 @pytest.mark.slow
@@ -98,6 +102,5 @@ def test_a_character_without_its_meshes_is_drawn_with_bones_and_framed(test_data
     with pytest.warns(UserWarning, match="mesh file"):
         motion_video(clip, char, out, VideoOptions(0.2, W, H, data_paths=DataPaths(test_data)))
     _, frames = decode(out)
-    r, g, b = (frames[0][..., i].astype(int) for i in range(3))
-    rows = np.flatnonzero(((b > r + 40) & (b > g + 25)).any(axis=1))
+    rows = np.flatnonzero(character_mask(frames[0]).any(axis=1))
     assert rows.max() - rows.min() > 0.4 * H, (rows.min(), rows.max())
