@@ -201,10 +201,19 @@ function updateRunNode({ run, node, fields: f }) {
   f["Compare sweep"].hidden = !run.sweep_id;
 }
 
+// A refused action's reason, in a line above the list: a modal alert would block the page (a reload
+// while a request is in flight aborts it, and its alert would hold the navigation).
+function showRunError(run, e) {
+  $("run-error").textContent = e ? `run #${run.id}: ${e.message}` : "";
+}
+
 // POSTs carry a JSON body (the server refuses cross-site form posts).
 async function runAction(run, action, body = {}) {
   let result = null;
-  try { result = await api("POST", `/api/runs/${run.id}/${action}`, body); } catch (e) { alert(e.message); }
+  try {
+    result = await api("POST", `/api/runs/${run.id}/${action}`, body);
+    showRunError(run, null);
+  } catch (e) { showRunError(run, e); }
   if (result && action === "resume") selectRun(run.id);
   if (result && action === "again") selectRun(result.id);
   refreshRuns();
@@ -222,7 +231,10 @@ function continueRun(run) {
 
 async function deleteRun(run) {
   if (!confirm(`Delete run #${run.id} "${run.name}" and its folder ${run.out_dir}?`)) return;
-  try { await api("DELETE", `/api/runs/${run.id}`); } catch (e) { alert(e.message); }
+  try {
+    await api("DELETE", `/api/runs/${run.id}`);
+    showRunError(run, null);
+  } catch (e) { showRunError(run, e); }
   if (selectedRun === run.id) {
     selectedRun = null;
     $("curves-title").textContent = "Curves";

@@ -295,9 +295,20 @@ def page_actions(page, server: StudioProcess, clip: Path) -> None:
 
     item = page.locator(f"[data-run-id='{run['id']}']")
     item.locator("[data-field=status]", has_text="finished").wait_for(timeout=15_000)
+    # A budget it has already trained is refused: the reason shows in the panel, and no modal dialog
+    # (an alert) holds the page after the prompt.
+    dialogs: list[str] = []
+    page.on("dialog", lambda d: dialogs.append(d.type))
+    page.once("dialog", lambda d: d.accept(str(PER_ITER)))
+    item.locator("button[data-action=continue]").click()
+    page.locator("#run-error", has_text=f"run #{run['id']}: ").wait_for(timeout=15_000)
+    assert "is not more than the" in page.locator("#run-error").inner_text()
+    assert dialogs == ["prompt"] and run_of(server, run["id"])["attempts"] == 1
+
     page.once("dialog", lambda d: d.accept(str(2 * PER_ITER)))  # Continue asks for the new budget
     item.locator("button[data-action=continue]").click()
     wait_for(lambda: run_of(server, run["id"])["attempts"] == 2, 15, "the run to be continued")
+    wait_for(lambda: page.locator("#run-error").inner_text() == "", 10, "the refusal's line to clear")
     assert ended(server, run["id"])["summary"]["samples"] == 2 * PER_ITER
     item = page.locator(f"[data-run-id='{run['id']}']")
     item.locator("[data-field=samples]", has_text="256 / 256 samples").wait_for(timeout=15_000)
