@@ -70,7 +70,7 @@ function render() {
 }
 
 const label = (r) => `#${r.id} ${r.name}`;
-const rank = (k) => ["returns", "lengths", "rewards", "losses"].indexOf(groupOf(k));
+const rank = (k) => ["returns", "lengths", "falls", "rewards", "losses"].indexOf(groupOf(k));
 
 function renderDiff() {
   const box = $("compare-diff");

@@ -249,6 +249,10 @@ def test_the_run_list_shows_seed_progress_and_end_state(
 
             item.click()  # its curves: the resume drawn as a marker
             page.wait_for_selector("#curves [data-group=returns][data-markers='1']", timeout=15_000)
+            # The share of test falls and the paper's two tracking errors, on one plot.
+            falls = page.locator("#curves [data-group=falls][data-series='3']")
+            falls.wait_for(timeout=15_000)
+            assert all(k in falls.inner_text() for k in ("test_fail_frac", "paper_pos_err_m", "paper_dof_vel_err"))
             bad.click()  # the diverged run's losses: the non-finite iteration marked
             page.wait_for_selector("#curves [data-group=losses]:not([data-nonfinite='0'])", timeout=15_000)
             page_actions(page, server, clip)
