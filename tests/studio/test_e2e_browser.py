@@ -113,8 +113,10 @@ def test_launch_and_stop_a_run_from_the_page(page, studio: StudioProcess, tmp_pa
     item = page.locator(f"[data-run-id='{run['id']}']")
     item.locator(".status.running").wait_for(timeout=10_000)
     page.click("#launch-box summary")  # fold the form again: the curves move up
-    # Live curves from the metrics stream (uPlot): both returns, each reward term, the losses.
+    # Live curves from the metrics stream (uPlot): both returns, falls and the two paper errors, each
+    # reward term, the losses.
     page.wait_for_selector("#curves [data-group=returns][data-series='2'] canvas", timeout=15_000)
+    page.wait_for_selector("#curves [data-group=falls][data-series='3']")
     page.wait_for_selector("#curves [data-group=rewards][data-series='2']")
     page.wait_for_selector("#curves [data-group=losses][data-series='2']")
     if state(studio)["clip"]:
