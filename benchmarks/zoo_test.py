@@ -36,12 +36,17 @@ def row(name: str, runs: list[dict]) -> str:
     episodes = sum(r["episodes"] for r in runs)
     full = sum(r["episode_ends"]["time"] + r["episode_ends"]["succ"] for r in runs)
 
-    def mean(key: str, tracking: bool = True) -> float:
-        return sum((r["tracking"] if tracking else r)[key] * r["episodes"] for r in runs) / episodes
+    def mean(key: str, tracking: bool = True) -> float | None:
+        """Episode-weighted mean; None when a run has no such figure (AMP has no clip to track)."""
+        values = [((r["tracking"] if tracking else r).get(key), r["episodes"]) for r in runs]
+        return None if any(v is None for v, _ in values) else sum(v * n for v, n in values) / episodes
+
+    def fmt(value: float | None, spec: str) -> str:
+        return "–" if value is None else format(value, spec)
 
     return (
-        f"| `{name}` | {mean('mean_episode_length', tracking=False):.1f} | {full} of {episodes} | "
-        f"{mean('paper_pos_err_m'):.3f} | {mean('paper_dof_vel_err'):.2f} |"
+        f"| `{name}` | {fmt(mean('mean_episode_length', tracking=False), '.1f')} | {full} of {episodes} | "
+        f"{fmt(mean('paper_pos_err_m'), '.3f')} | {fmt(mean('paper_dof_vel_err'), '.2f')} |"
     )
 
 
