@@ -110,7 +110,6 @@ def run(
     `port` None: join the group through env:// (torchrun). `launch`: how the processes were started
     (`spawn_launch` / `TorchrunEnv.record`, plus this node's `devices`), recorded in args.json."""
     from mimickit.learning import mp_util
-    from mimickit.learning.agent_builder import build_agent
 
     args = ArgParser()
     args.load_args(argv)  # checked by main() (check_run_args) before any process started
@@ -123,6 +122,30 @@ def run(
         base_seed = draw_seed(args)[0]
     launch = launch or spawn_launch([device] * world)
     mp_util.init(rank, world, device, port)
+    result: dict[str, Any] | int = ExitCode.FAILED
+    try:
+        result = _run_in_group(args, argv, inputs, device, rank, base_seed, launch, resume, mode)
+    finally:
+        # the group is left before the interpreter exits (gloo aborts otherwise); a failed process
+        # does not wait for peers that may never arrive
+        mp_util.shutdown(synchronize=result != ExitCode.FAILED)
+    return result
+
+
+def _run_in_group(
+    args: ArgParser,
+    argv: list[str],
+    inputs: RunInputs,
+    device: str,
+    rank: int,
+    base_seed: int,
+    launch: dict[str, Any],
+    resume: dict[str, Any] | None,
+    mode: str,
+) -> dict[str, Any] | int:
+    from mimickit.learning import mp_util
+    from mimickit.learning.agent_builder import build_agent
+
     base_seed = mp_util.broadcast_int(base_seed)  # torchrun: each process drew its own; rank 0's counts
     seed_everything(args, rank, base_seed)
     torch.set_num_threads(max(1, (os.cpu_count() or 1) // launch["local_world_size"]))

@@ -41,10 +41,15 @@ def init(rank: int, num_procs: int, device: torch.device | str, master_port: int
     dist.init_process_group(backend, init_method="env://", rank=rank, world_size=num_procs)
 
 
-def shutdown() -> None:
-    """Leave the process group (no-op for a single process)."""
+def shutdown(synchronize: bool = True) -> None:
+    """Leave the process group (no-op for a single process). With `synchronize`, first wait until every
+    process got here: gloo aborts a process (SIGABRT) that tears its group down while a peer still
+    talks to it, and so does an interpreter exiting with the group alive. Without it (this process
+    failed, its peers may never arrive) the group is torn down at once."""
     global _num_procs, _rank
     if _num_procs > 1 and dist.is_initialized():
+        if synchronize:
+            dist.barrier()
         dist.destroy_process_group()
     _num_procs, _rank = 1, 0
 
