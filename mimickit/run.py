@@ -207,13 +207,7 @@ def build_run_env(inputs: RunInputs, num_envs: int, device: str) -> tuple[Any, d
     from mimickit.envs.env_builder import build_env_from_configs
     from mimickit.envs.env_config import load_env_configs
 
-    env_cfg, engine_cfg = load_env_configs(inputs.env_file, inputs.engine_file)
-    if inputs.motion_file is not None:
-        if not hasattr(env_cfg, "motion_file"):
-            raise MimicKitError(
-                f"--motion_file: env {env_cfg.env_name!r} ({inputs.env_file}) has no motion_file to replace"
-            )
-        env_cfg = env_cfg.model_copy(update={"motion_file": inputs.motion_file})
+    env_cfg, engine_cfg = load_env_configs(inputs.env_file, inputs.engine_file, inputs.motion_file)
     motion = getattr(env_cfg, "motion_file", None)
     info = {
         "env_name": env_cfg.env_name,

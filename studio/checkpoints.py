@@ -29,6 +29,7 @@ from mimickit.util.warn import collect_warnings
 
 TRAIN_STATE_KEY = "_train_state"
 CONFIG_FILES = (ENV_CONFIG_FILE, ENGINE_CONFIG_FILE, AGENT_CONFIG_FILE)
+MOTION_FILE = "motion_file"  # configs_from_arg_file's key for an arg file's `--motion_file`
 
 
 def load_state(path: Path) -> dict[str, Any]:
@@ -183,7 +184,8 @@ def inspect_checkpoint(path: Path) -> dict[str, Any]:
 
 def configs_beside(path: Path) -> dict[str, str]:
     """The run configs a trainer copied next to this checkpoint (model.pt, or int_models/x.pt), or
-    those a shipped model's arg file names (`models/x_model.pt` beside `models/x_model.txt`)."""
+    those a shipped model's arg file names (`models/x_model.pt` beside `models/x_model.txt`), with its
+    `--motion_file` (`configs_from_arg_file`)."""
     for folder in (path.parent, path.parent.parent):
         found = {name: str(folder / name) for name in CONFIG_FILES if (folder / name).is_file()}
         if ENV_CONFIG_FILE in found:
@@ -193,13 +195,15 @@ def configs_beside(path: Path) -> dict[str, str]:
 
 
 def configs_from_arg_file(arg_file: Path, data_dir: Path) -> dict[str, str]:
-    """`--env_config` / `--agent_config` / `--engine_config` of an arg file; `data/...` paths resolve in
-    `data_dir` first, then in the project's data folder."""
+    """`--env_config` / `--agent_config` / `--engine_config` of an arg file (keyed by their run-folder
+    file names) and its `--motion_file` (key `MOTION_FILE`: the clip or dataset that replaces the env
+    config's); `data/...` paths resolve in `data_dir` first, then in the project's data folder."""
     args = ArgParser()
     args.load_file(str(arg_file))
+    keys = {name: name.removesuffix(".yaml") for name in CONFIG_FILES} | {MOTION_FILE: MOTION_FILE}
     found = {}
-    for name in CONFIG_FILES:
-        value = args.parse_string(name.removesuffix(".yaml"), "")
+    for name, key in keys.items():
+        value = args.parse_string(key, "")
         if not value:
             continue
         rel = Path(value)
@@ -208,7 +212,7 @@ def configs_from_arg_file(arg_file: Path, data_dir: Path) -> dict[str, str]:
         candidates = [d / rest for d in DataPaths(data_dir).dirs()] if rest is not None else [PROJECT_ROOT / rel]
         hit = next((c for c in candidates if c.is_file()), None)
         if hit is None:
-            raise MimicKitError(f"{arg_file}: --{name.removesuffix('.yaml')} {value}: file not found")
+            raise MimicKitError(f"{arg_file}: --{key} {value}: file not found")
         found[name] = str(hit)
     return found if ENV_CONFIG_FILE in found else {}
 

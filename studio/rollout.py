@@ -37,7 +37,7 @@ from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFI
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import DataPaths
 from mimickit.util.warn import collect_warnings
-from studio.checkpoints import configs_beside
+from studio.checkpoints import MOTION_FILE, configs_beside
 from studio.playable import Playable, command
 from studio.scene import BODY_ERROR_SCALE_M, BODY_ERROR_STOPS, SUPPORT_WINDOW_S, StudioScene
 from studio.scene_thread import SceneThread
@@ -62,6 +62,7 @@ class RolloutSource:
     data_dir: Path | None = None
     run_id: int | None = None
     run_name: str | None = None
+    motion_file: Path | None = None  # replaces the env config's clip (a shipped model's `--motion_file`)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -69,6 +70,7 @@ class RolloutSource:
             "env_config": str(self.env_config),
             "agent_config": str(self.agent_config),
             "engine_config": str(self.engine_config) if self.engine_config else None,
+            "motion_file": str(self.motion_file) if self.motion_file else None,
             "data_dir": str(self.data_dir) if self.data_dir else None,
             "run_id": self.run_id,
             "run_name": self.run_name,
@@ -85,9 +87,11 @@ def source_for_checkpoint(
     run_id: int | None = None,
     run_name: str | None = None,
 ) -> RolloutSource:
-    """The configs a trainer copied beside `checkpoint` (its folder, or the parent of `int_models/`),
-    unless given; MimicKitError when there are none."""
+    """The configs a trainer copied beside `checkpoint` (its folder, or the parent of `int_models/`) or
+    its arg file names, unless given (the arg file's `--motion_file` goes with its env config only);
+    MimicKitError when there are none."""
     beside = configs_beside(checkpoint)
+    motion = Path(beside[MOTION_FILE]) if env_config is None and MOTION_FILE in beside else None
     env = env_config or (Path(beside[ENV_CONFIG_FILE]) if ENV_CONFIG_FILE in beside else None)
     agent = agent_config or (Path(beside[AGENT_CONFIG_FILE]) if AGENT_CONFIG_FILE in beside else None)
     engine = engine_config or (Path(beside[ENGINE_CONFIG_FILE]) if ENGINE_CONFIG_FILE in beside else None)
@@ -99,7 +103,7 @@ def source_for_checkpoint(
         )
     if data_dir is None and beside:
         data_dir = run_data_dir(Path(beside[ENV_CONFIG_FILE]).parent)
-    return RolloutSource(checkpoint, env, agent, engine, data_dir, run_id, run_name)
+    return RolloutSource(checkpoint, env, agent, engine, data_dir, run_id, run_name, motion)
 
 
 def run_data_dir(run_dir: Path) -> Path | None:
@@ -153,7 +157,9 @@ class Rollout:
         self.source = source
         paths = DataPaths(source.data_dir)  # the run's data folder: each rollout its own
         with collect_warnings():  # dropped, as before; not `catch_warnings`, which swaps every thread's filters
-            self.env = build_env(source.env_config, source.engine_config, 1, "cpu", visualize=True, data_paths=paths)
+            self.env = build_env(
+                source.env_config, source.engine_config, 1, "cpu", True, paths, motion_file=source.motion_file
+            )
             try:
                 self.agent = build_agent(source.agent_config, self.env, "cpu", verbose=False, data_paths=paths)
                 self.agent.load(source.checkpoint)  # MimicKitError (one line) when it does not fit

@@ -110,7 +110,7 @@ class VideoJobs(JobQueue[VideoJob]):
         data_dir: Path | None = None,
     ) -> VideoJob:
         """Queue `mimickit video --model_file checkpoint` with an arg file naming `configs`
-        (env_config, agent_config and optionally engine_config)."""
+        (env_config, agent_config and optionally engine_config and motion_file)."""
         return self._submit(
             seconds, width, height, checkpoint=checkpoint, configs=configs, run_id=run_id, data_dir=data_dir
         )

@@ -21,9 +21,11 @@ def build_env(
     device: torch.device | str = "cpu",
     visualize: bool = False,
     data_paths: DataPaths = PROJECT_DATA,
+    motion_file: str | Path | None = None,
 ) -> SimEnv:
-    """The env of an env yaml and an engine yaml; the configs' `data/...` files are found by `data_paths`."""
-    env_cfg, engine_cfg = load_env_configs(env_file, engine_file)
+    """The env of an env yaml and an engine yaml, `motion_file` (when given) replacing the env's clip or
+    dataset; the configs' `data/...` files are found by `data_paths`."""
+    env_cfg, engine_cfg = load_env_configs(env_file, engine_file, motion_file)
     return build_env_from_configs(env_cfg, engine_cfg, num_envs, device, visualize, data_paths)
 
 

@@ -167,8 +167,11 @@ ENVS: Registry[CharEnvConfig, SimEnv] = Registry(
 """Every env by its yaml `env_name`: `load_env_configs` and `env_builder` both use this table."""
 
 
-def load_env_configs(env_file: str | Path, engine_file: str | Path | None) -> tuple[CharEnvConfig, EngineConfig]:
-    """Read and validate an env yaml and an engine yaml (the env's `engine:` block merged in)."""
+def load_env_configs(
+    env_file: str | Path, engine_file: str | Path | None, motion_file: str | Path | None = None
+) -> tuple[CharEnvConfig, EngineConfig]:
+    """Read and validate an env yaml and an engine yaml (the env's `engine:` block merged in);
+    `motion_file` (`--motion_file`) replaces the env's clip or dataset."""
     raw = load_yaml(env_file)
     env_name = raw.get("env_name")
     if env_name is None:
@@ -182,6 +185,10 @@ def load_env_configs(env_file: str | Path, engine_file: str | Path | None) -> tu
     )
     fields["env_name"] = env_name
     env_cfg = parse_config(ENVS.config_class(env_name), fields, env_file)
+    if motion_file is not None:
+        if not hasattr(env_cfg, "motion_file"):
+            raise MimicKitError(f"--motion_file: env {env_name!r} ({env_file}) has no motion_file to replace")
+        env_cfg = env_cfg.model_copy(update={"motion_file": str(motion_file)})
     engine_raw = load_yaml(engine_file) if engine_file else {}
     engine_raw = merge_engine_overrides(engine_raw, raw.get("engine") or {}, env_file)
     if not engine_raw:

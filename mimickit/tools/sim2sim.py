@@ -24,6 +24,7 @@ from mimickit.envs.env_builder import build_env_from_configs
 from mimickit.envs.env_config import load_env_configs
 from mimickit.envs.sim_env import SimEnv
 from mimickit.learning.agent_builder import build_agent
+from mimickit.run import resolve_inputs
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA, DataPaths
@@ -48,37 +49,26 @@ class _Run:
     body_err: list[float] = field(default_factory=list)
 
 
-def _arg_configs(arg_file: str, data_paths: DataPaths) -> tuple[str, str | None, str | None]:
-    args = ArgParser(data_paths)
-    args.load_file(arg_file)
-
-    def path(key: str) -> str | None:
-        value = args.parse_string(key, "")
-        return str(data_paths.resolve(value)) if value else None
-
-    env_file = path("env_config")
-    if env_file is None:
-        raise MimicKitError(f"{arg_file}: no --env_config")
-    return env_file, path("engine_config"), path("agent_config")
-
-
 def _make_run(
     engine: str, arg_file: str, model_file: str | None, motion_file: str | None, data_paths: DataPaths
 ) -> _Run:
-    env_file, engine_file, agent_file = _arg_configs(arg_file, data_paths)
-    env_cfg, engine_cfg = load_env_configs(env_file, engine_file)
+    args = ArgParser(data_paths)
+    args.load_file(arg_file)
+    inputs = resolve_inputs(args, data_paths)  # the configs and the arg file's --motion_file
+    env_cfg, engine_cfg = load_env_configs(inputs.env_file, inputs.engine_file)
     if not hasattr(env_cfg, "motion_file"):
-        raise MimicKitError(f"{env_file}: sim2sim needs an env with a reference motion (deepmimic, add, amp)")
+        raise MimicKitError(f"{inputs.env_file}: sim2sim needs an env with a reference motion (deepmimic, add, amp)")
+    motion = str(data_paths.resolve(motion_file)) if motion_file else inputs.motion_file
     updates: dict[str, Any] = {"rand_reset": False}  # both engines start at clip time 0
-    if motion_file:
-        updates["motion_file"] = str(data_paths.resolve(motion_file))
+    if motion:
+        updates["motion_file"] = motion
     env_cfg = env_cfg.model_copy(update=updates)
     # The arg file's physics (rates, control mode) with only the engine swapped.
     engine_cfg = engine_cfg.model_copy(update={"engine_name": engine})
     env = build_env_from_configs(env_cfg, engine_cfg, 1, data_paths=data_paths)
     agent = None
     if model_file:
-        agent = build_agent(agent_file, env, verbose=False)
+        agent = build_agent(inputs.agent_file, env, verbose=False)
         agent.load(model_file)
     obs, _ = env.reset()
     return _Run(engine, env, agent, obs.clone())

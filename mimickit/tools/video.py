@@ -36,7 +36,7 @@ from mimickit.envs.env_config import ViewMotionEnvConfig
 from mimickit.envs.view_motion_env import ViewMotionEnv
 from mimickit.learning.agent_builder import build_agent
 from mimickit.learning.base_agent import AgentMode, BaseAgent
-from mimickit.run import _config_path, seed_everything
+from mimickit.run import resolve_inputs, seed_everything
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_config, parse_config
 from mimickit.util.errors import MimicKitError
@@ -337,13 +337,14 @@ def policy_video(
     paths = opts.data_paths
     args = ArgParser(paths)
     args.load_args(["--arg_file", str(arg_file), "--rand_seed", str(seed)])
-    env_file = _config_path(args, "env_config", paths, required=True)
-    engine_file, agent_file = _config_path(args, "engine_config", paths), _config_path(args, "agent_config", paths)
+    inputs = resolve_inputs(args, paths)  # the configs and the arg file's --motion_file
     backend = select_gl_backend()
     seed_everything(args, 0)  # same seed, same start time in the clip, same video
-    env = build_env(env_file, engine_file, 1, "cpu", visualize=True, data_paths=paths)  # the env adds the ghost
+    env = build_env(
+        inputs.env_file, inputs.engine_file, 1, "cpu", True, paths, motion_file=inputs.motion_file
+    )  # visualize: the env adds the ghost
     try:
-        agent = build_agent(agent_file, env, "cpu", verbose=False)
+        agent = build_agent(inputs.agent_file, env, "cpu", verbose=False)
         agent.load(model_file)
         agent.eval()
         agent.set_mode(AgentMode.TEST)  # the env in test mode too, as `mimickit test`

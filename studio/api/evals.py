@@ -15,7 +15,7 @@ from studio.api import studio_of
 from studio.api.bodies import OneLineErrors, StrictBody
 from studio.api.runs import resolve_arg_file
 from studio.api.scene import roll_out
-from studio.checkpoints import configs_beside, configs_from_arg_file
+from studio.checkpoints import MOTION_FILE, configs_beside, configs_from_arg_file
 from studio.evals import ACTIVE, EvalJob, EvalJobs, clip_env_config
 from studio.runs import CHECKPOINT
 from studio.security import confine
@@ -87,6 +87,8 @@ def start_eval(body: StartEval, request: Request) -> dict[str, Any]:
             "engine_config": beside.get(ENGINE_CONFIG_FILE),
         }
     motion = str(confine(body.motion_file, s.readable_roots)) if body.motion_file else None
+    if motion is None and configs is not None:
+        motion = beside.get(MOTION_FILE)  # a shipped model's arg file: the clip it was trained on
     job = jobs_of(request).submit(
         checkpoint, arg_file=arg_file, configs=configs, motion_file=motion, episodes=body.episodes, run_id=body.run_id
     )

@@ -96,6 +96,8 @@ def start_video(body: StartVideo, request: Request) -> dict[str, Any]:
     configs = {"env_config": source.env_config, "agent_config": source.agent_config}
     if source.engine_config is not None:
         configs["engine_config"] = source.engine_config
+    if source.motion_file is not None:  # a shipped model's arg file: the clip it was trained on
+        configs["motion_file"] = source.motion_file
     job = jobs_of(request).submit_policy(
         checkpoint, configs, run_id=body.run_id, data_dir=source.data_dir or s.data_dir, **size
     )

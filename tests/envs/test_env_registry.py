@@ -114,3 +114,12 @@ def test_building_a_deepmimic_env_imports_no_other_env_agent_or_engine():
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "DeepMimicEnv []"
+
+
+def test_load_env_configs_replaces_the_clip_or_refuses_an_env_without_one() -> None:
+    """`--motion_file` replaces an env's clip; an env that plays no clip refuses it in one line."""
+    env_cfg, _ = load_env_configs(PROJECT_DATA_DIR / "envs" / "deepmimic_humanoid_env.yaml", ENGINE, "other.pkl")
+    assert env_cfg.motion_file == "other.pkl"
+    dof_test = PROJECT_DATA_DIR / "envs" / "dof_test_humanoid_env.yaml"
+    with pytest.raises(MimicKitError, match=r"--motion_file: env 'char_dof_test' \(.*dof_test_humanoid_env.yaml\)"):
+        load_env_configs(dof_test, ENGINE, "other.pkl")

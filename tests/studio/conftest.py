@@ -181,3 +181,15 @@ def write_demo_dataset(folder: Path, short_frames: int = 45) -> tuple[Path, Path
     entries = [{"file": DEMO_CLIP_NAME, "weight": 1.0}, {"file": str(short), "weight": 2.0}]
     dataset.write_text(yaml.safe_dump({"motions": entries}, sort_keys=False))
     return dataset, short
+
+
+def shipped_style_model(folder: Path, *extra_args: str) -> Path:
+    """The shipped demo policy copied to `folder/models/x_model.pt` beside an arg file `x_model.txt`
+    naming its configs (as data/models/ does) plus `extra_args`."""
+    models = folder / "models"
+    models.mkdir(parents=True)
+    model = models / "x_model.pt"
+    shutil.copyfile(PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_demo_model.pt", model)
+    sidecar = (PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_demo_model.txt").read_text()
+    model.with_suffix(".txt").write_text(sidecar + "".join(f"{a}\n" for a in extra_args))
+    return model

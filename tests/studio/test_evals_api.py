@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.studio.conftest import StudioProcess, wait_for, write_arg_file
+from tests.studio.conftest import StudioProcess, shipped_style_model, wait_for, write_arg_file, write_demo_dataset
 from tests.studio.test_stream import EventReader
 
 pytestmark = pytest.mark.integration
@@ -51,6 +51,33 @@ def test_eval_of_the_shipped_model_and_a_row_rolled_out(studio: StudioProcess) -
     finally:
         studio.post("/api/scene/rollout/close")
     assert studio.post(f"/api/evals/{job['id']}/rollout", {"row": 5}).status_code == 422
+
+
+def test_a_models_arg_file_motion_file_is_what_the_studio_evaluates_and_rolls_out(studio: StudioProcess) -> None:
+    """A model beside an arg file naming `--motion_file` (as data/models/ ships them): its eval, its
+    rollout and its video job use that clip, not the env config's."""
+    _, short = write_demo_dataset(studio.runs_dir / "clips")
+    model = shipped_style_model(studio.runs_dir / "sidecar", "--motion_file", str(short))
+    job = studio.post("/api/evals", {"checkpoint": str(model), "episodes": 1}).json()
+    assert job["motion_file"] == str(short), job
+    state = studio.post("/api/scene/load_rollout", {"checkpoint": str(model), "play": False})
+    assert state.status_code == 200, state.text
+    try:
+        assert [Path(f) for f in state.json()["rollout"]["motion_files"]] == [short]
+    finally:
+        studio.post("/api/scene/rollout/close")
+    video = studio.post("/api/videos", {"checkpoint": str(model), "seconds": 0.2, "width": 64, "height": 48})
+    assert video.status_code == 201, video.text
+    assert f"--motion_file {short}\n" in (Path(video.json()["folder"]) / "args.txt").read_text()
+    done = finished(studio, job["id"])
+    assert done["status"] == "finished", done["error"]
+    assert [Path(r["clip"]) for r in done["rows"]] == [short]
+    rendered = wait_for(
+        lambda: (j := studio.get(f"/api/videos/{video.json()['id']}").json())["status"] in ("finished", "failed") and j,
+        240,
+        "the video to end",
+    )
+    assert rendered["status"] == "finished", rendered["error"]
 
 
 def test_a_failing_eval_says_why(studio: StudioProcess) -> None:

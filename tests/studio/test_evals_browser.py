@@ -183,8 +183,20 @@ def test_a_trained_runs_evaluate_button_evaluates_its_checkpoint(page, real_serv
     job_id = int(job.get_attribute("data-eval-id"))
     assert real_server.get(f"/api/evals/{job_id}").json()["checkpoint"].endswith(f"{run['id']:04d}-eval-me/model.pt")
     status = job.locator("[data-field=status]")
-    wait_for(lambda: status.inner_text() in ("finished", "failed"), EVAL_TIMEOUT_S, "the run's eval to end")
+    try:
+        wait_for(lambda: status.inner_text() in ("finished", "failed"), EVAL_TIMEOUT_S, "the run's eval to end")
+    except AssertionError as e:  # once seen in a long session: was it the eval or the page?
+        raise AssertionError(f"{e}; the server says: {eval_state(real_server, job_id)}") from None
     assert status.inner_text() == "finished", job.locator("[data-field=error]").inner_text()
     wait_for(lambda: job.locator("table.evals tbody tr").count() >= 1, 30, "the eval table")
     assert errors == []
     tab.close()
+
+
+def eval_state(server: StudioProcess, job_id: int) -> str:
+    """The job as the server has it (status and times) and the end of its console.log."""
+    job = server.get(f"/api/evals/{job_id}").json()
+    log = Path(job["folder"]) / "console.log"
+    tail = log.read_text(errors="replace")[-1500:] if log.is_file() else "(no console.log)"
+    times = {k: job[k] for k in ("status", "error", "created_at", "started_at", "ended_at")}
+    return f"{times}, console.log ends: {tail!r}"

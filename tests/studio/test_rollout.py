@@ -17,11 +17,27 @@ import torch
 
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_ROOT
-from studio.checkpoints import agent_type, check_fit_char, check_fit_env, fit_message, inspect_checkpoint
+from studio.checkpoints import (
+    MOTION_FILE,
+    agent_type,
+    check_fit_char,
+    check_fit_env,
+    configs_beside,
+    fit_message,
+    inspect_checkpoint,
+)
 from studio.rollout import Rollout, RolloutPlayer, source_for_checkpoint
 from studio.scene_thread import SceneThread
 from tests.conftest import PROJECT_HUMANOID
-from tests.studio.conftest import ENGINE_YAML, ENV_YAML, smaller_obs_env_yaml, wait_for, write_checkpoint_dir
+from tests.studio.conftest import (
+    ENGINE_YAML,
+    ENV_YAML,
+    shipped_style_model,
+    smaller_obs_env_yaml,
+    wait_for,
+    write_checkpoint_dir,
+    write_demo_dataset,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -70,6 +86,32 @@ def test_source_takes_the_data_dir_of_a_cli_run(tmp_path: Path, test_data: Path)
     done = subprocess.run([sys.executable, "-m", "mimickit.cli", "train", *argv], cwd=tmp_path, capture_output=True)
     assert done.returncode == 0, done.stderr.decode()[-2000:]
     assert source_for_checkpoint(out / "model.pt").data_dir == test_data.resolve()
+
+
+def test_a_models_arg_file_motion_file_is_the_clip_it_rolls_out_on(tmp_path: Path) -> None:
+    """A shipped model's arg file that names `--motion_file` rolls out on that clip, not the env config's;
+    an env config given with the request takes its own clip; a missing clip is one line naming it."""
+    _, short = write_demo_dataset(tmp_path / "clips")
+    model = shipped_style_model(tmp_path / "a", "--motion_file", str(short))
+    assert configs_beside(model)[MOTION_FILE] == str(short)
+    source = source_for_checkpoint(model)
+    assert source.motion_file == short and source.to_json()["motion_file"] == str(short)
+    r = Rollout(source, history_s=1.0)
+    try:
+        assert [Path(f) for f in r.motion_files] == [short]
+    finally:
+        r.close()
+    assert source_for_checkpoint(model, env_config=ENV_YAML).motion_file is None
+    plain = source_for_checkpoint(shipped_style_model(tmp_path / "b"))
+    assert plain.motion_file is None
+    r = Rollout(plain, history_s=1.0)
+    try:
+        assert [Path(f).name for f in r.motion_files] == ["humanoid_demo_squat.pkl"]  # the env config's
+    finally:
+        r.close()
+    missing = shipped_style_model(tmp_path / "c", "--motion_file", "data/motions/no_such_clip.pkl")
+    with pytest.raises(MimicKitError, match="x_model.txt: --motion_file data/motions/no_such_clip.pkl: file not found"):
+        source_for_checkpoint(missing)
 
 
 def test_rollout_steps_records_and_resets(rollout: Rollout) -> None:

@@ -85,6 +85,12 @@ def test_video_argument_errors(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     args = ["video", "--motion", str(DEMO_CLIP), "--char", str(PROJECT_HUMANOID), "--out", str(tmp_path / "v.gif")]
     assert cli.main(args) == 2
     assert "error: --out must be an .mp4 file" in capsys.readouterr().err
+    # the arg file's --motion_file is the clip the policy is filmed on: read, so a missing one is refused
+    arg_file = tmp_path / "args.txt"
+    arg_file.write_text(DEMO_ARGS.read_text() + "\n--motion_file data/motions/no_such_clip.pkl\n")
+    args = ["video", "--model_file", str(DEMO_MODEL), "--arg_file", str(arg_file), "--out", str(tmp_path / "p.mp4")]
+    assert cli.main(args) == 2
+    assert "error: --motion_file: file not found: data/motions/no_such_clip.pkl" in capsys.readouterr().err
 
 
 @pytest.mark.slow
