@@ -4,13 +4,15 @@
 reference's `run.py` ones: arg_file, mode, num_envs, engine_config, env_config, agent_config, out_dir,
 model_file, max_samples, test_episodes, logger (txt|tb|wandb), rand_seed, devices, save_int_models,
 visualize, video; plus data_dir (a MimicKit data folder for `data/...` paths), motion_file (a clip or
-dataset yaml that replaces the env config's `motion_file`) and json (test mode: print one JSON object).
+dataset yaml that replaces the env config's `motion_file`), max_hours (a wall-time budget: training ends,
+as at max_samples, once the recorded wall time reaches it) and json (test mode: print one JSON object).
 
 A training run's folder (`--out_dir`, see `mimickit.run_folder`) records the run: args.json (argv,
 effective values, the seed used, versions), the configs as trained, state.json (running, then
 finished / stopped / diverged / failed with the line that says why). Without `--rand_seed` a seed is
 drawn and recorded; `--rand_seed <seed>` repeats a CPU run's metrics rows exactly (same num_envs).
-`--model_file RUN/model.pt --out_dir RUN --max_samples LARGER` continues a run with a new budget.
+`--model_file RUN/model.pt --out_dir RUN --max_samples LARGER` (or `--max_hours LARGER`) continues a run
+with a new budget.
 SIGTERM or Ctrl-C during training saves a checkpoint and exits 0 (state stopped).
 Several processes: `--devices cpu cpu` spawns one per device; under torchrun (`torchrun --nproc-per-node 2
 -m mimickit.cli train ...`, see `mimickit.torchrun_env`) every process is already started and joins the
@@ -117,7 +119,9 @@ def run(
     inputs = resolve_inputs(args)
     resume = None
     if mode == "train":
-        resume = check_resume_budget(args.parse_string("model_file", ""), args.parse_int("max_samples", NO_LIMIT))
+        resume = check_resume_budget(
+            args.parse_string("model_file", ""), args.parse_int("max_samples", NO_LIMIT), max_hours(args)
+        )
     if base_seed is None:
         base_seed = draw_seed(args)[0]
     launch = launch or spawn_launch([device] * world)
@@ -162,10 +166,15 @@ def _run_in_group(
     return _train(args, argv, inputs, env_info, agent, base_seed, launch, resume)
 
 
-def check_resume_budget(model_file: str, max_samples: int) -> dict[str, Any] | None:
+def max_hours(args: ArgParser) -> float | None:
+    """`--max_hours` (checked > 0 by `check_run_args`); None: no wall-time budget."""
+    return args.parse_float("max_hours") if args.parse_string("max_hours", "") else None
+
+
+def check_resume_budget(model_file: str, max_samples: int, hours: float | None = None) -> dict[str, Any] | None:
     """Where training resumes from (`model_file`, `iteration`, `samples` of the checkpoint's train
     state; None for no checkpoint or one without a train state, i.e. a fresh start), after refusing a
-    checkpoint that already reached `max_samples` (it would train nothing)."""
+    checkpoint that already reached `max_samples` or `hours` of recorded wall time (it would train nothing)."""
     if not model_file:
         return None
     from mimickit.learning import checkpoint
@@ -178,6 +187,11 @@ def check_resume_budget(model_file: str, max_samples: int) -> dict[str, Any] | N
         raise MimicKitError(
             f"{model_file} already has {samples} samples, which reaches --max_samples {max_samples}:"
             " nothing to train (give a larger --max_samples to continue it)"
+        )
+    if hours is not None and train_state["wall_time_hours"] >= hours:
+        raise MimicKitError(
+            f"{model_file} already has {train_state['wall_time_hours']:.3f} h of training, which reaches --max_hours"
+            f" {hours:g}: nothing to train (give a larger --max_hours to continue it)"
         )
     return {"model_file": str(Path(model_file).resolve()), "iteration": train_state["iteration"], "samples": samples}
 
@@ -275,6 +289,7 @@ def _train(
             out_dir=str(folder.path),
             save_int_models=args.parse_bool("save_int_models", False),
             logger_type=args.parse_string("logger", "txt"),
+            max_hours=max_hours(args),
         )
     except Exception as e:  # noqa: BLE001 - any error ends the run as failed, with its one line
         line = _one_line(e)
@@ -284,7 +299,7 @@ def _train(
             traceback.print_exc()
         print(f"error: {line}", file=sys.stderr, flush=True)
         return ExitCode.FAILED
-    state, reason, code = _end_state(summary, max_samples, signals, folder.model_file.is_file())
+    state, reason, code = _end_state(summary, max_samples, max_hours(args), signals, folder.model_file.is_file())
     if root:
         folder.write_state(state, reason, iteration=summary.iterations, samples=summary.samples)
         if state != EndState.DIVERGED:  # the divergence line is already on the terminal
@@ -292,7 +307,9 @@ def _train(
     return code
 
 
-def _end_state(summary: Any, max_samples: int, signals: list[str], saved: bool) -> tuple[EndState, str, int]:
+def _end_state(
+    summary: Any, max_samples: int, hours: float | None, signals: list[str], saved: bool
+) -> tuple[EndState, str, int]:
     done = f"iteration {summary.iterations}, {summary.samples} samples"
     if summary.diverged:
         return EndState.DIVERGED, summary.diverged, ExitCode.DIVERGED
@@ -300,6 +317,8 @@ def _end_state(summary: Any, max_samples: int, signals: list[str], saved: bool) 
         by = signals[0] if signals else "a stop request"
         saved_note = "; model.pt saved" if saved else " (before the first iteration: no model.pt)"
         return EndState.STOPPED, f"stopped by {by} at {done}{saved_note}", ExitCode.OK
+    if summary.out_of_time:
+        return EndState.FINISHED, f"reached max_hours {hours:g} of recorded wall time at {done}", ExitCode.OK
     return EndState.FINISHED, f"reached max_samples {max_samples} at {done}", ExitCode.OK
 
 
@@ -320,6 +339,7 @@ def _effective_values(
         "mode": "train",
         "num_envs": agent.get_num_envs(),
         "max_samples": max_samples if max_samples < NO_LIMIT else None,
+        "max_hours": max_hours(args),
         "devices": launch["devices"],
         "world_size": launch["world_size"],
         "engine_config": inputs.engine_file,

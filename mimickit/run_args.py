@@ -9,6 +9,7 @@ reference's arg files carry them) and ignored by training: the studio and `mimic
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import tempfile
@@ -28,6 +29,7 @@ RUN_ARGS: dict[str, str] = {
     "out_dir": "run folder for log.txt, metrics.jsonl, model.pt (train mode)",
     "model_file": "checkpoint to start from (train) or to evaluate (test)",
     "max_samples": "stop training after this many env steps (an integer >= 1)",
+    "max_hours": "stop training once the run's recorded wall time, resumes included, reaches this many hours (> 0)",
     "test_episodes": "episodes to evaluate in test mode (an integer >= 1)",
     "logger": "txt, tb (TensorBoard) or wandb",
     "rand_seed": "random seed (an integer >= 0; -1 or absent: draw one and record it)",
@@ -67,6 +69,7 @@ def check_run_args(args: ArgParser, probe_out_dir: bool = True) -> None:
     _check_choice(args, "logger", LOGGERS)
     _check_int(args, "num_envs", 1, MAX_NUM_ENVS)
     _check_int(args, "max_samples", 1)
+    _check_positive(args, "max_hours")
     _check_int(args, "test_episodes", 1)
     _check_int(args, "rand_seed", -1, MAX_SEED)
     _check_int(args, "master_port", 0, 65_535)
@@ -131,6 +134,16 @@ def _check_int(args: ArgParser, key: str, lo: int, hi: int | None = None) -> Non
     if val < lo or (hi is not None and val > hi):
         bound = f"between {lo} and {hi}" if hi is not None else f">= {lo}"
         raise MimicKitError(f"--{key}{_where(args, key)} must be an integer {bound}, got {_short(str(val))}")
+
+
+def _check_positive(args: ArgParser, key: str) -> None:
+    if not args.has_key(key):
+        return
+    if not args.parse_string(key, ""):
+        raise MimicKitError(f"--{key}{_where(args, key)} needs a value ({RUN_ARGS[key]})")
+    val = args.parse_float(key)
+    if not math.isfinite(val) or val <= 0:
+        raise MimicKitError(f"--{key}{_where(args, key)} must be a number > 0, got {_short(str(val))}")
 
 
 def _check_bool(args: ArgParser, key: str) -> None:

@@ -224,3 +224,36 @@ def test_a_crash_in_training_ends_as_failed_with_its_line(tmp_path: Path) -> Non
     assert state is not None and state.state.value == "failed" and "model.pt" in state.reason
     assert "\n" not in state.reason
     assert r.stderr.strip().splitlines()[-1] == f"error: {state.reason}"
+
+
+def test_max_hours_ends_the_run_as_a_budget_and_a_spent_one_is_refused(tmp_path: Path) -> None:
+    """`--max_hours`: training ends once the recorded wall time reaches it, tested and saved as at
+    `--max_samples` (state finished, saying so); a resume whose checkpoint has spent it is refused, and
+    a larger one trains on. A budget that is not a number > 0 is one line."""
+    run = tmp_path / "run"
+    tiny = "0.000000001"  # one iteration takes far longer than 3.6 µs: the budget is spent by the first
+    r = mimickit(*train_args(run, "--max_samples", str(10 * SAMPLES_PER_ITER), "--max_hours", tiny))
+    assert r.returncode == 0, r.stderr[-3000:]
+    state = RunFolder(run).read_state()
+    assert state.state.value == "finished" and (state.iteration, state.samples) == (1, SAMPLES_PER_ITER)
+    assert state.reason == f"reached max_hours 1e-09 of recorded wall time at iteration 1, {SAMPLES_PER_ITER} samples"
+    assert f"finished: {state.reason}" in r.stdout
+    (row,) = data_rows(run)
+    assert row["wall_time"] >= 1e-9 and "test_return" in row  # the last iteration was tested
+    assert (run / "model.pt").is_file()
+    assert RunFolder(run).read_args()["effective"]["max_hours"] == 1e-9
+
+    resume = train_args(run, "--model_file", str(run / "model.pt"), "--max_samples", TWO_ITERS)
+    r = mimickit(*resume, "--max_hours", tiny)
+    assert r.returncode == ExitCode.REFUSED
+    assert r.stderr.startswith(f"error: {run / 'model.pt'} already has ") and r.stderr.strip().endswith(
+        "h of training, which reaches --max_hours 1e-09: nothing to train (give a larger --max_hours to continue it)"
+    )
+    r = mimickit(*resume, "--max_hours", "1")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert RunFolder(run).read_state().reason == f"reached max_samples {TWO_ITERS} at iteration 2, {TWO_ITERS} samples"
+
+    for bad in ("0", "-1", "nan", "soon"):
+        r = mimickit(*train_args(tmp_path / "bad", "--max_hours", bad))
+        assert r.returncode == ExitCode.REFUSED and r.stderr.count("\n") == 1, r.stderr
+        assert r.stderr.startswith("error: --max_hours"), r.stderr

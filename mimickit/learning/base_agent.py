@@ -83,6 +83,8 @@ class TrainSummary:
     model_file: Path
     diverged: str = ""
     """The reason line when the divergence guard ended training (`diverged at iteration N: ...`)."""
+    out_of_time: bool = False
+    """True when the recorded wall time reached `max_hours` (the run ended as it does at `max_samples`)."""
 
 
 @dataclass
@@ -131,9 +133,15 @@ class BaseAgent(nn.Module, abc.ABC):
     # ---------------------------------------------------------------- public API
 
     def train_model(
-        self, max_samples: int, out_dir: str | Path, save_int_models: bool = False, logger_type: str = "txt"
+        self,
+        max_samples: int,
+        out_dir: str | Path,
+        save_int_models: bool = False,
+        logger_type: str = "txt",
+        max_hours: float | None = None,
     ) -> TrainSummary:
-        """Train until the global sample count reaches `max_samples`, `request_stop()` is called or an
+        """Train until the global sample count reaches `max_samples`, the recorded wall time (resumes
+        included, as metrics.jsonl's `wall_time`) reaches `max_hours`, `request_stop()` is called or an
         iteration diverges.
 
         Every `iters_per_output` iterations (and the last): test episodes, a log.txt row, `model.pt`
@@ -164,14 +172,16 @@ class BaseAgent(nn.Module, abc.ABC):
 
         saved_iter = None
         diverged = ""
+        out_of_time = False
         try:
-            while self._sample_count < max_samples and not self._sync_stop_flag():
+            while self._sample_count < max_samples and not out_of_time and not self._sync_stop_flag():
                 step = self.train_iteration()
                 if step is None:  # stopped mid-rollout: the partial iteration is discarded
                     break
                 train_info, non_finite = step.info, step.non_finite
+                out_of_time = self._out_of_time(max_hours)
                 output = not non_finite and (
-                    self._iter % self.config.iters_per_output == 0 or self._sample_count >= max_samples
+                    self._iter % self.config.iters_per_output == 0 or self._sample_count >= max_samples or out_of_time
                 )
                 if output:
                     test = self.test_model(self.config.test_episodes)
@@ -192,14 +202,20 @@ class BaseAgent(nn.Module, abc.ABC):
                     self._write_output(logger, model_file, int_dir)
                     saved_iter = self._iter
                 self._iter += 1
-            stopped = not diverged and self._sample_count < max_samples
+            stopped = not diverged and not out_of_time and self._sample_count < max_samples
             if stopped and saved_iter != self._iter - 1 and self._iter > 0:
                 self._write_checkpoint(model_file, self._iter)
         finally:
             self._wall_time_offset = self._current_wall_hours()
             self._train_start = None
             logger.close()
-        return TrainSummary(self._iter, self._sample_count, stopped, model_file, diverged)
+        return TrainSummary(self._iter, self._sample_count, stopped, model_file, diverged, out_of_time and not diverged)
+
+    def _out_of_time(self, max_hours: float | None) -> bool:
+        """Whether the recorded wall time reached `max_hours`, by rank 0's clock (every rank agrees)."""
+        if max_hours is None:
+            return False
+        return bool(mp_util.broadcast_int(int(self._current_wall_hours() >= max_hours)))
 
     def start_training(self) -> None:
         """Fresh episodes in every env and the counters a run starts from (a resumed run keeps its own).
