@@ -33,6 +33,8 @@ import mujoco
 import numpy as np
 import torch
 
+from mimickit.policy import load_policy
+from mimickit.run import RunInputs
 from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, RunFolder
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import DataPaths
@@ -63,6 +65,16 @@ class RolloutSource:
     run_id: int | None = None
     run_name: str | None = None
     motion_file: Path | None = None  # replaces the env config's clip (a shipped model's `--motion_file`)
+
+    def inputs(self) -> RunInputs:
+        """As `mimickit test` would resolve them; `data/...` names are found in the run's data folder."""
+        return RunInputs(
+            env_file=str(self.env_config),
+            engine_file=str(self.engine_config) if self.engine_config else None,
+            agent_file=str(self.agent_config),
+            motion_file=str(self.motion_file) if self.motion_file else None,
+            data_paths=DataPaths(self.data_dir),
+        )
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -151,22 +163,10 @@ class Rollout:
     """The policy of `source.checkpoint` in one env (see the module docstring). Not thread-safe."""
 
     def __init__(self, source: RolloutSource, history_s: float = HISTORY_S) -> None:
-        from mimickit.envs.env_builder import build_env  # torch/mujoco-heavy: only when asked
-        from mimickit.learning.agent_builder import build_agent
-
         self.source = source
-        paths = DataPaths(source.data_dir)  # the run's data folder: each rollout its own
         with collect_warnings():  # dropped, as before; not `catch_warnings`, which swaps every thread's filters
-            self.env = build_env(
-                source.env_config, source.engine_config, 1, "cpu", True, paths, motion_file=source.motion_file
-            )
-            try:
-                self.agent = build_agent(source.agent_config, self.env, "cpu", verbose=False, data_paths=paths)
-                self.agent.load(source.checkpoint)  # MimicKitError (one line) when it does not fit
-            except BaseException:
-                self.close()
-                raise
-        self.agent.eval()
+            # MimicKitError (one line) when the checkpoint does not fit
+            self.env, self.agent = load_policy(source.inputs(), source.checkpoint, visualize=True)
         engine = self.env.engine
         view = engine.mujoco_view(0)  # every engine draws through a MuJoCo model of its scene
         self.model: mujoco.MjModel = view.model

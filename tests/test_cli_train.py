@@ -213,21 +213,13 @@ def root_travel_speed(name: str, data_dir: Path, num_envs: int = 4, steps: int =
     episode started, in `steps` control steps of its deterministic rollout (its sidecar arg file's configs,
     test mode; fewer steps than an episode, so only a fall ends one); and how many envs fell. AMP has no
     clip to track: this is what says the policy walks, rather than stands or turns on the spot."""
-    from mimickit.learning.agent_builder import build_agent
     from mimickit.learning.base_agent import AgentMode
-    from mimickit.run import build_run_env, resolve_inputs
-    from mimickit.util.arg_parser import ArgParser
+    from mimickit.policy import load_policy, policy_inputs
     from mimickit.util.paths import DataPaths
 
-    paths = DataPaths(data_dir)
-    args = ArgParser(paths)
-    args.load_args(["--arg_file", str(PROJECT_ROOT / f"data/models/{name}.txt")])
-    inputs = resolve_inputs(args, paths)
+    inputs = policy_inputs(PROJECT_ROOT / f"data/models/{name}.txt", DataPaths(data_dir))
     torch.manual_seed(0)
-    env, _ = build_run_env(inputs, num_envs, "cpu")
-    agent = build_agent(inputs.agent_file, env, "cpu", verbose=False)
-    agent.load(str(PROJECT_ROOT / f"data/models/{name}.pt"))
-    agent.eval()
+    env, agent = load_policy(inputs, PROJECT_ROOT / f"data/models/{name}.pt", num_envs)
     agent.set_mode(AgentMode.TEST)
     char = env.get_char_id()
     obs, _ = env.reset()

@@ -131,14 +131,12 @@ def _check_clips(clips: list[EvalClip]) -> None:
 
 def _eval_clip(inputs: Any, model_file: str, clip: EvalClip, num_envs: int, opts: EvalOptions) -> dict[str, Any]:
     from mimickit import run
-    from mimickit.learning.agent_builder import build_agent
+    from mimickit.policy import load_policy
     from mimickit.util.arg_parser import ArgParser
 
     run.seed_everything(ArgParser(), 0, opts.rand_seed)
-    env, _ = run.build_run_env(replace(inputs, motion_file=str(clip.path)), num_envs, DEVICE)
+    env, agent = load_policy(replace(inputs, motion_file=str(clip.path)), model_file, num_envs, DEVICE)
     try:
-        agent = build_agent(inputs.agent_file, env, DEVICE, verbose=False)
-        agent.load(model_file)
         result = run.test_result(agent, env, opts.episodes)
     finally:
         env.engine.close()

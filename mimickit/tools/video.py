@@ -31,11 +31,10 @@ import torch
 
 from mimickit.engines.engine import EngineConfig
 from mimickit.envs.char_env import CHAR_COLOR, CharEnv
-from mimickit.envs.env_builder import build_env
 from mimickit.envs.env_config import ViewMotionEnvConfig
 from mimickit.envs.view_motion_env import ViewMotionEnv
-from mimickit.learning.agent_builder import build_agent
 from mimickit.learning.base_agent import AgentMode, BaseAgent
+from mimickit.policy import load_policy
 from mimickit.run import resolve_inputs, seed_everything
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_config, parse_config
@@ -340,13 +339,8 @@ def policy_video(
     inputs = resolve_inputs(args, paths)  # the configs and the arg file's --motion_file
     backend = select_gl_backend()
     seed_everything(args, 0)  # same seed, same start time in the clip, same video
-    env = build_env(
-        inputs.env_file, inputs.engine_file, 1, "cpu", True, paths, motion_file=inputs.motion_file
-    )  # visualize: the env adds the ghost
+    env, agent = load_policy(inputs, model_file, visualize=True)  # visualize: the env adds the ghost
     try:
-        agent = build_agent(inputs.agent_file, env, "cpu", verbose=False)
-        agent.load(model_file)
-        agent.eval()
         agent.set_mode(AgentMode.TEST)  # the env in test mode too, as `mimickit test`
         view, ghost_id = env.engine.mujoco_view(0), env.get_ref_char_id()
         model, char = view.model, view.objects[env.get_char_id()].body_ids
