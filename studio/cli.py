@@ -101,6 +101,7 @@ def add_sweep_parser(sub: argparse._SubParsersAction) -> None:
     sweep.add_argument("--name", help="the sweep's name (its runs are named after it and their values)")
     sweep.add_argument("--num_envs", type=int)
     sweep.add_argument("--max_samples", type=int)
+    sweep.add_argument("--max_hours", type=float, help="each run's wall-time budget (the trainer's --max_hours)")
     sweep.add_argument("--num-cpus", type=float, help="CPUs each run reserves on a Ray cluster (default 1)")
     sweep.add_argument("--num-gpus", type=float, help="GPUs each run reserves on a Ray cluster")
     sweep.add_argument("--url", default="http://127.0.0.1:8000/", help="the studio's address")
@@ -116,7 +117,7 @@ def sweep_body(args: argparse.Namespace) -> dict[str, object]:
             raise MimicKitError(f"--values {item!r}: write KEY=V1,V2,... (e.g. rand_seed=0,1,2)")
         values.setdefault(key.strip().removeprefix("--"), []).extend(v.strip() for v in text.split(","))
     body = {"arg_file": args.arg_file, "values": values, "dataset": args.dataset, "name": args.name}
-    body |= {"num_envs": args.num_envs, "max_samples": args.max_samples}
+    body |= {"num_envs": args.num_envs, "max_samples": args.max_samples, "max_hours": args.max_hours}
     body |= {"num_cpus": args.num_cpus, "num_gpus": args.num_gpus}
     return {k: v for k, v in body.items() if v is not None}
 

@@ -1,5 +1,5 @@
 """What a run's folder says about it, for the run list: the clip or dataset and character it trains,
-env count, budget and seed (args.json's effective values; the env_config.yaml as trained when a
+env count, budgets (samples, hours) and seed (args.json's effective values; the env_config.yaml as trained when a
 trainer recorded no clip), samples, elapsed training time, samples/s and the last test return
 (metrics.jsonl), and its end state with the line that says why (state.json). The folder is the truth;
 the registry only knows what was asked.
@@ -66,6 +66,7 @@ def _from_args(folder: RunFolder) -> dict[str, Any]:
         "resumes": len(starts),  # each resume keeps the start before it
         "num_envs": _int(values.get("num_envs")),
         "max_samples": budget if budget is not None and budget < NO_BUDGET else None,
+        "max_hours": values.get("max_hours") if _finite(values.get("max_hours")) else None,
     }
     for key in ("motion_file", "char_file"):  # as the trainer resolved them
         if values.get(key):

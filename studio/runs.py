@@ -52,6 +52,7 @@ def train_command(
     max_samples: int | None = None,
     motion_file: str | None = None,
     rand_seed: int | None = None,
+    max_hours: float | None = None,
     data_dir: str | Path | None = None,
     model_file: str | Path | None = None,
     extra: dict[str, str] | None = None,
@@ -62,6 +63,7 @@ def train_command(
     optional = {
         "num_envs": num_envs,
         "max_samples": max_samples,
+        "max_hours": max_hours,
         "motion_file": motion_file,
         "rand_seed": rand_seed,
         "data_dir": data_dir,
@@ -71,6 +73,37 @@ def train_command(
         if value is not None:  # "cpu cpu" for --devices: one argv item per value, as a shell would split it
             argv += [f"--{key}", *(str(value).split() if key in MULTI_VALUE_ARGS else [str(value)])]
     return argv
+
+
+def _resume_budget(
+    run: Run, config: dict[str, Any], max_samples: int | None, max_hours: float | None
+) -> dict[str, Any]:
+    """`config` with the new budgets, after refusing one that is not more than the run has trained, and a
+    kept one that is spent (the trainer would refuse it: said here, not as a failed run)."""
+    summary = run_summary(run.out_dir)
+    done, hours = summary["samples"] or 0, (summary["elapsed_s"] or 0.0) / 3600.0
+    if max_samples is not None and max_samples <= done:
+        raise RunError(f"max_samples {max_samples} is not more than the {done} samples run {run.id} has trained")
+    if max_hours is not None and max_hours <= hours:
+        raise RunError(f"max_hours {max_hours:g} is not more than the {hours:.3f} h run {run.id} has trained")
+    if max_samples is None and max_hours is None and run.status == RunStatus.FINISHED:
+        raise RunError(
+            f"run {run.id} reached its budget ({done} samples, {hours:.3f} h); give a larger max_samples"
+            " or max_hours to continue it"
+        )
+    given = {k: v for k, v in (("max_samples", max_samples), ("max_hours", max_hours)) if v is not None}
+    config = {**config, **given}
+    if config.get("max_samples") is not None and config["max_samples"] <= done:
+        raise RunError(
+            f"run {run.id} has trained {done} samples, its max_samples {config['max_samples']}; give a larger"
+            " max_samples to continue it"
+        )
+    if config.get("max_hours") is not None and config["max_hours"] <= hours:
+        raise RunError(
+            f"run {run.id} has trained {hours:.3f} h, its max_hours {config['max_hours']:g}; give a larger"
+            " max_hours to continue it"
+        )
+    return config
 
 
 def child_env() -> dict[str, str]:
@@ -123,9 +156,10 @@ class RunManager:
                     self.executor.stop(job_id)
             return run
 
-    def resume(self, run_id: int, max_samples: int | None = None) -> Run:
+    def resume(self, run_id: int, max_samples: int | None = None, max_hours: float | None = None) -> Run:
         """Queue an ended run again: a new process (a new job) in the same folder, from its checkpoint,
-        with the budget `max_samples` (total samples, more than it has trained) or the one it had."""
+        with the budgets `max_samples` (total samples, more than it has trained) and `max_hours` (hours of
+        recorded wall time in all, more than it has trained) or those it had."""
         with self._lock:
             run = self.get(run_id)
             if not run.status.finished:
@@ -134,17 +168,7 @@ class RunManager:
             if not checkpoint.is_file():
                 raise RunError(f"run {run_id} has no checkpoint ({CHECKPOINT}) to resume from")
             config = {**run.config, "model_file": str(checkpoint)}
-            done = run_summary(run.out_dir)["samples"] or 0
-            if max_samples is not None:
-                if max_samples <= done:
-                    raise RunError(
-                        f"max_samples {max_samples} is not more than the {done} samples run {run_id} has trained"
-                    )
-                config["max_samples"] = max_samples
-            elif run.status == RunStatus.FINISHED:
-                raise RunError(
-                    f"run {run_id} reached its budget ({done} samples); give a larger max_samples to continue it"
-                )
+            config = _resume_budget(run, config, max_samples, max_hours)
             run = self.registry.update(
                 run_id,
                 status=RunStatus.QUEUED,
@@ -289,6 +313,7 @@ class RunManager:
             max_samples=cfg.get("max_samples"),
             motion_file=cfg.get("motion_file"),
             rand_seed=cfg.get("rand_seed"),
+            max_hours=cfg.get("max_hours"),
             data_dir=self.settings.data_dir,
             model_file=cfg.get("model_file"),
             extra=cfg.get("args"),

@@ -35,6 +35,7 @@ export function initRuns(theStream) {
     if ($("run-name").value) body.name = $("run-name").value;
     if ($("num-envs").value) body.num_envs = Number($("num-envs").value);
     if ($("max-samples").value) body.max_samples = Number($("max-samples").value);
+    if ($("max-hours").value) body.max_hours = Number($("max-hours").value);
     if ($("motion-file").value) body.motion_file = $("motion-file").value;
     if ($("rand-seed").value !== "") body.rand_seed = Number($("rand-seed").value);
     if ($("num-cpus").value !== "") body.num_cpus = Number($("num-cpus").value);
@@ -181,7 +182,8 @@ function updateRunNode({ run, node, fields: f }) {
   if (budget) f.progress.value = Math.min(s.samples || 0, budget);
   else f.progress.removeAttribute("value");  // no budget: an indeterminate bar
   set(f.samples, `${num(s.samples)} / ${budget ? num(budget) : "no limit"} samples`);
-  set(f.elapsed, duration(s.elapsed_s));
+  const hours = s.max_hours ?? run.config.max_hours ?? null;
+  set(f.elapsed, hours ? `${duration(s.elapsed_s)} / ${hours} h` : duration(s.elapsed_s));
   set(f.rate, `${s.samples_per_s ? s.samples_per_s.toFixed(0) : "–"} samples/s`);
   set(f["test-return"], s.test_return !== null && s.test_return !== undefined ? s.test_return.toFixed(2) : "–");
   set(f["test-falls"], s.test_fail_frac !== null && s.test_fail_frac !== undefined ? `${Math.round(100 * s.test_fail_frac)}%` : "–");
@@ -219,14 +221,20 @@ async function runAction(run, action, body = {}) {
   refreshRuns();
 }
 
-// Continue: resume from the checkpoint with a budget (total samples); a run that reached its budget needs a larger one.
+// Continue: resume from the checkpoint with a budget (total samples, or hours as "2h"); a run that
+// reached its budget needs a larger one.
 function continueRun(run) {
   const s = run.summary || {};
   const budget = s.max_samples ?? run.config.max_samples ?? null, samples = s.samples;
-  const suggested = budget && samples >= budget ? 2 * budget : budget || "";
-  const answer = prompt(`Continue run #${run.id} up to how many samples in all? (trained: ${num(samples)})`, String(suggested));
+  const hours = s.max_hours ?? run.config.max_hours ?? null, trainedH = (s.elapsed_s || 0) / 3600;
+  const suggested = hours && trainedH >= hours ? `${2 * hours}h` : budget && samples >= budget ? 2 * budget : budget || "";
+  const answer = prompt(`Continue run #${run.id} up to how many samples in all, or hours as "2h"? `
+    + `(trained: ${num(samples)} samples, ${trainedH.toFixed(2)} h)`, String(suggested));
   if (answer === null) return;
-  runAction(run, "resume", answer.trim() ? { max_samples: Number(answer) } : {});
+  const text = answer.trim(), inHours = /h$/i.test(text);
+  const value = Number(inHours ? text.slice(0, -1) : text);
+  if (text && !(value > 0)) { showRunError(run, new Error(`not a budget: ${text}`)); return; }
+  runAction(run, "resume", !text ? {} : inHours ? { max_hours: value } : { max_samples: value });
 }
 
 async function deleteRun(run) {

@@ -38,6 +38,7 @@ class LaunchRun(StrictBody):
     name: str | None = Field(None, max_length=200)
     num_envs: int | None = Field(None, gt=0, le=MAX_NUM_ENVS)  # the trainer's bounds
     max_samples: int | None = Field(None, gt=0)
+    max_hours: float | None = Field(None, gt=0, description="a wall-time budget: the trainer's --max_hours")
     motion_file: str | None = Field(None, description="a clip (.pkl) or dataset (.yaml) replacing the env config's")
     rand_seed: int | None = Field(None, ge=0, le=MAX_SEED, description="the seed (default: the trainer picks one)")
     num_cpus: float | None = Field(None, ge=0, le=1024, description="CPUs the run reserves (Ray executor; default 1)")
@@ -46,6 +47,7 @@ class LaunchRun(StrictBody):
 
 class ResumeRun(StrictBody):
     max_samples: int | None = Field(None, gt=0, description="the new budget: total samples, more than trained")
+    max_hours: float | None = Field(None, gt=0, description="the new wall-time budget: hours in all, more than trained")
 
 
 def resolve_arg_file(path: str, settings: Settings) -> Path:
@@ -140,7 +142,7 @@ def run_config(body: LaunchRun, settings: Settings) -> dict[str, Any]:
     config: dict[str, Any] = {"arg_file": str(resolve_arg_file(body.arg_file, settings))}
     if body.motion_file:
         config["motion_file"] = str(resolve_motion_file(body.motion_file, settings))
-    for key in ("num_envs", "max_samples", "rand_seed", "num_cpus", "num_gpus"):
+    for key in ("num_envs", "max_samples", "max_hours", "rand_seed", "num_cpus", "num_gpus"):
         if getattr(body, key) is not None:
             config[key] = getattr(body, key)
     if settings.executor == "ray":
@@ -175,7 +177,8 @@ def resume(run_id: int, request: Request, body: ResumeRun | None = None) -> dict
     """A new process in the same run folder with `--model_file <out_dir>/model.pt`; `max_samples` sets
     a new budget (needed to continue a run that reached its budget). The trainer marks the resume with a
     `{"event": "resume"}` row in metrics.jsonl."""
-    return run_json(studio_of(request).runs.resume(run_id, body.max_samples if body else None))
+    budget = {"max_samples": body.max_samples, "max_hours": body.max_hours} if body else {}
+    return run_json(studio_of(request).runs.resume(run_id, **budget))
 
 
 @router.post("/{run_id}/again", status_code=201)

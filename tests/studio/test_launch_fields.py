@@ -151,6 +151,31 @@ def test_continue_with_a_larger_budget(server: StudioProcess, fields_run: dict, 
     assert resumed_run["attempts"] == 2 and resumed_run["reason"].startswith("reached max_samples 384")
 
 
+def test_a_wall_time_budget_ends_the_run_and_continue_takes_a_larger_one(server: StudioProcess) -> None:
+    """`max_hours` reaches the trainer: a budget spent by the first iteration ends the run there, as
+    finished, saying so; Continue needs a larger budget (in samples or hours) and trains on with it."""
+    body = {"arg_file": DEMO_ARGS, "name": "hours", "num_envs": 4, "max_samples": 2 * PER_ITER, "max_hours": 1e-9}
+    run_id = server.post("/api/runs", body).json()["id"]
+    done = ended(server, run_id)
+    assert done["status"] == "finished", console(done)
+    assert done["reason"] == f"reached max_hours 1e-09 of recorded wall time at iteration 1, {PER_ITER} samples"
+    assert done["summary"]["max_hours"] == 1e-9 and done["summary"]["samples"] == PER_ITER
+    assert done["command"][done["command"].index("--max_hours") + 1] == "1e-09"
+
+    r = server.post(f"/api/runs/{run_id}/resume", {})
+    assert r.status_code == 409 and "give a larger max_samples or max_hours" in r.json()["detail"], r.text
+    r = server.post(f"/api/runs/{run_id}/resume", {"max_samples": 3 * PER_ITER})  # the hours stay spent
+    assert r.status_code == 409 and "its max_hours 1e-09; give a larger max_hours" in r.json()["detail"], r.text
+    r = server.post(f"/api/runs/{run_id}/resume", {"max_hours": 1e-10})
+    assert r.status_code == 409 and r.json()["detail"].startswith("max_hours 1e-10 is not more than the"), r.text
+    r = server.post(f"/api/runs/{run_id}/resume", {"max_hours": 1})
+    assert r.status_code == 200, r.text
+    again = ended(server, run_id)
+    assert again["status"] == "finished", console(again)
+    assert again["reason"] == f"reached max_samples {2 * PER_ITER} at iteration 2, {2 * PER_ITER} samples"
+    assert again["config"]["max_hours"] == 1 and again["summary"]["max_hours"] == 1
+
+
 @pytest.fixture(scope="module")
 def diverged_run(server: StudioProcess) -> dict:
     """The demo arg file with a learning rate of 1e4 (the issue's recipe for NaN losses), 8 envs."""
@@ -285,6 +310,7 @@ def page_actions(page, server: StudioProcess, clip: Path) -> None:
     page.fill("#run-name", "from the form")
     page.fill("#num-envs", "4")
     page.fill("#max-samples", str(PER_ITER))
+    page.fill("#max-hours", "1")
     page.fill("#rand-seed", "11")
     page.click("#launch-button")
     run = wait_for(
@@ -295,6 +321,7 @@ def page_actions(page, server: StudioProcess, clip: Path) -> None:
     record = RunFolder(done["out_dir"]).read_args()
     eff = record["effective"]
     assert (eff["num_envs"], eff["max_samples"], eff["motion_file"], record["seed"]) == (4, PER_ITER, str(clip), 11)
+    assert eff["max_hours"] == 1
     assert eff["env_config"].endswith("deepmimic_humanoid_env.yaml")  # the demo arg file's, the form's default
 
     item = page.locator(f"[data-run-id='{run['id']}']")
@@ -308,6 +335,10 @@ def page_actions(page, server: StudioProcess, clip: Path) -> None:
     page.locator("#run-error", has_text=f"run #{run['id']}: ").wait_for(timeout=15_000)
     assert "is not more than the" in page.locator("#run-error").inner_text()
     assert dialogs == ["prompt"] and run_of(server, run["id"])["attempts"] == 1
+    page.once("dialog", lambda d: d.accept("0.000000001h"))  # a budget in hours, written "2h"
+    item.locator("button[data-action=continue]").click()
+    page.locator("#run-error", has_text="max_hours 1e-09 is not more than the").wait_for(timeout=15_000)
+    assert run_of(server, run["id"])["attempts"] == 1
 
     page.once("dialog", lambda d: d.accept(str(2 * PER_ITER)))  # Continue asks for the new budget
     item.locator("button[data-action=continue]").click()
