@@ -214,7 +214,7 @@ def test_unknown_launch_keys_are_refused_by_name(studio: StudioProcess) -> None:
     r = studio.post("/api/runs", {"arg_file": "args/short.txt", "num_env": 8})
     assert r.status_code == 422 and r.json() == {"detail": "unknown key 'num_env'; did you mean 'num_envs'?"}
     r = studio.post(f"/api/runs/{launch(studio, 'short')['id']}/resume", {"budget": 10})
-    assert r.status_code == 422 and r.json()["detail"] == "unknown key 'budget'; known keys: max_samples"
+    assert r.status_code == 422 and r.json()["detail"] == "unknown key 'budget'; known keys: max_samples, max_hours"
     r = studio.post("/api/runs", {"arg_file": "args/short.txt", "rand_seed": -1})
     assert r.status_code == 422 and r.json()["detail"] == "rand_seed: Input should be greater than or equal to 0"
     r = studio.post("/api/runs", {"arg_file": "args/short.txt", "num_envs": 65_537})
@@ -249,7 +249,7 @@ def test_continue_a_finished_run_with_a_larger_budget(studio: StudioProcess) -> 
     run = wait_status(studio, launch(studio, "long", max_samples=3 * per_row)["id"], "finished")
     assert run["summary"]["samples"] == 3 * per_row and run["summary"]["max_samples"] == 3 * per_row
     r = studio.post(f"/api/runs/{run['id']}/resume", {})
-    assert r.status_code == 409 and "reached its budget (384 samples)" in r.json()["detail"]
+    assert r.status_code == 409 and "reached its budget (384 samples, " in r.json()["detail"]
     r = studio.post(f"/api/runs/{run['id']}/resume", {"max_samples": 3 * per_row})
     assert r.status_code == 409 and "not more than the 384 samples" in r.json()["detail"]
     r = studio.post(f"/api/runs/{run['id']}/resume", {"max_samples": 5 * per_row})
