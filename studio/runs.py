@@ -82,27 +82,22 @@ def _resume_budget(
     kept one that is spent (the trainer would refuse it: said here, not as a failed run)."""
     summary = run_summary(run.out_dir)
     done, hours = summary["samples"] or 0, (summary["elapsed_s"] or 0.0) / 3600.0
-    if max_samples is not None and max_samples <= done:
-        raise RunError(f"max_samples {max_samples} is not more than the {done} samples run {run.id} has trained")
-    if max_hours is not None and max_hours <= hours:
-        raise RunError(f"max_hours {max_hours:g} is not more than the {hours:.3f} h run {run.id} has trained")
-    if max_samples is None and max_hours is None and run.status == RunStatus.FINISHED:
+    given = {k: v for k, v in (("max_samples", max_samples), ("max_hours", max_hours)) if v is not None}
+    if not given and run.status == RunStatus.FINISHED:
         raise RunError(
             f"run {run.id} reached its budget ({done} samples, {hours:.3f} h); give a larger max_samples"
             " or max_hours to continue it"
         )
-    given = {k: v for k, v in (("max_samples", max_samples), ("max_hours", max_hours)) if v is not None}
     config = {**config, **given}
-    if config.get("max_samples") is not None and config["max_samples"] <= done:
-        raise RunError(
-            f"run {run.id} has trained {done} samples, its max_samples {config['max_samples']}; give a larger"
-            " max_samples to continue it"
-        )
-    if config.get("max_hours") is not None and config["max_hours"] <= hours:
-        raise RunError(
-            f"run {run.id} has trained {hours:.3f} h, its max_hours {config['max_hours']:g}; give a larger"
-            " max_hours to continue it"
-        )
+    checks = (("max_samples", done, f"{done} samples"), ("max_hours", hours, f"{hours:.3f} h"))
+    for key, amount, trained in sorted(checks, key=lambda c: c[0] not in given):  # a given budget's line first
+        budget = config.get(key)
+        if budget is None or budget > amount:
+            continue
+        text = f"{budget:g}" if isinstance(budget, float) else str(budget)
+        if key in given:
+            raise RunError(f"{key} {text} is not more than the {trained} run {run.id} has trained")
+        raise RunError(f"run {run.id} has trained {trained}, its {key} {text}; give a larger {key} to continue it")
     return config
 
 

@@ -24,8 +24,7 @@ from mimickit.envs.env_builder import build_env_from_configs
 from mimickit.envs.env_config import load_env_configs
 from mimickit.envs.sim_env import SimEnv
 from mimickit.learning.agent_builder import build_agent
-from mimickit.run import resolve_inputs
-from mimickit.util.arg_parser import ArgParser
+from mimickit.policy import policy_inputs
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA, DataPaths
 
@@ -52,9 +51,7 @@ class _Run:
 def _make_run(
     engine: str, arg_file: str, model_file: str | None, motion_file: str | None, data_paths: DataPaths
 ) -> _Run:
-    args = ArgParser(data_paths)
-    args.load_file(arg_file)
-    inputs = resolve_inputs(args, data_paths)  # the configs and the arg file's --motion_file
+    inputs = policy_inputs(arg_file, data_paths)  # the configs and the arg file's --motion_file
     env_cfg, engine_cfg = load_env_configs(inputs.env_file, inputs.engine_file)
     if not hasattr(env_cfg, "motion_file"):
         raise MimicKitError(f"{inputs.env_file}: sim2sim needs an env with a reference motion (deepmimic, add, amp)")

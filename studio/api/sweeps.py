@@ -27,13 +27,8 @@ from studio.settings import Settings
 
 router = APIRouter(prefix="/sweeps", tags=["sweeps"], route_class=OneLineErrors)
 MAX_RUNS = 256
-TYPED_KEYS = (
-    "rand_seed",
-    "motion_file",
-    "num_envs",
-    "max_samples",
-    "max_hours",
-)  # LaunchRun's fields, checked as a launch's
+# LaunchRun's fields, checked as a launch's
+TYPED_KEYS = ("rand_seed", "motion_file", "num_envs", "max_samples", "max_hours")
 STUDIO_KEYS = {"arg_file", "out_dir", "mode", "model_file", "data_dir", "json"}  # set by the studio, not swept
 SweepValue = str | int | float | bool
 
