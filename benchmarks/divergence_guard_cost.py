@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mimickit.learning.agent_builder import build_agent  # noqa: E402
-from mimickit.run import RunInputs, build_run_env  # noqa: E402
+from mimickit.runner.inputs import RunInputs, build_run_env  # noqa: E402
 from mimickit.util.arg_parser import ArgParser  # noqa: E402
 from mimickit.util.paths import PROJECT_DATA  # noqa: E402
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mimickit.run_folder import is_event_row  # noqa: E402
+from mimickit.learning.run_folder import is_event_row  # noqa: E402
 from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for  # noqa: E402
 from tests.studio.ray_head import local_ray_head  # noqa: E402
 

@@ -44,6 +44,7 @@ import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 from urllib.parse import urlparse
 
 import httpx
@@ -101,10 +102,12 @@ def background(cmd: str | None) -> Iterator[None]:
         proc.wait(60)
 
 
-async def count_delivered_poses(base: str, viser_port: int, seconds: float) -> tuple[int, int, float]:
-    """(poses received by a viser client, scene updates the server counted, seconds) over one window."""
+async def count_delivered_poses(base: str, seconds: float) -> tuple[int, int, float]:
+    """(poses received by a viser client, scene updates the server counted, seconds) over one window.
+    The client connects as the page does, through the studio's `/scene` relay (viser's own port takes
+    only the relay's requests)."""
     decompress = zstandard.ZstdDecompressor()
-    url = f"ws://127.0.0.1:{viser_port}"
+    url = base.replace("http", "ws", 1).rstrip("/") + "/scene"
     async with websockets.connect(url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as ws:
         # The first messages replay the whole scene; start counting after a quiet moment of that.
         await asyncio.sleep(1.0)
@@ -302,7 +305,7 @@ def percentiles(values: list[float]) -> tuple[float, float]:
     return float(np.percentile(values, 50)), float(np.percentile(values, 99))
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--url", help="a running studio (loopback only); default: start one")
     ap.add_argument("--data-dir", help="--data-dir for the server started here")
@@ -333,82 +336,109 @@ def main() -> None:
         raise SystemExit("the benchmark only talks to a studio on loopback")
     if args.idle_seconds and args.url and not args.server_pid:
         raise SystemExit("--idle-seconds with --url needs --server-pid (the server's CPU is read from /proc)")
-    checkpoint = json.loads(args.checkpoint)
+    return args
 
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    """Every measurement, in order, against one server (and inside `--train-cmd`): the raw figures."""
+    checkpoint = json.loads(args.checkpoint)
+    m: dict[str, Any] = {"errors": 0, "events": []}
     with (
         studio_server(args) as (base, pid),
         background(args.train_cmd),
         httpx.Client(base_url=base, timeout=60) as c,
     ):
-        viser_port = c.get("/api/health").json()["viser_port"]
-        loaded = c.post("/api/scene/load_clip", json={"path": args.clip}).raise_for_status().json()
+        m["loaded"] = c.post("/api/scene/load_clip", json={"path": args.clip}).raise_for_status().json()
         c.post("/api/scene/configure", json={"speed": args.speed, "loop": True}).raise_for_status()
         c.post("/api/scene/play", json={}).raise_for_status()
-        poses, updates, seconds = asyncio.run(count_delivered_poses(base, viser_port, args.seconds))
-        single = asyncio.run(api_latency(base, 1, 200))  # service time, without queueing
-        errors, events = 0, []
+        m["poses"], m["updates"], m["seconds"] = asyncio.run(count_delivered_poses(base, args.seconds))
+        m["single"] = asyncio.run(api_latency(base, 1, 200))  # service time, without queueing
         if args.duration:
-            latency, errors, events = asyncio.run(
+            m["latency"], m["errors"], m["events"] = asyncio.run(
                 load_for(base, args.clients, args.streams, args.duration, args.client)
             )
         else:
-            latency = asyncio.run(api_latency(base, args.clients, args.requests))
-        rollout = rollout_rate(c, checkpoint, args.rollout_seconds) if args.rollout_seconds else None
-        idle = idle_cpu(c, pid, args.idle_seconds) if args.idle_seconds else None
-        if not idle:
+            m["latency"] = asyncio.run(api_latency(base, args.clients, args.requests))
+        m["rollout"] = rollout_rate(c, checkpoint, args.rollout_seconds) if args.rollout_seconds else None
+        m["idle"] = idle_cpu(c, pid, args.idle_seconds) if args.idle_seconds else None
+        if not m["idle"]:
             c.post("/api/scene/pause", json={})
+    return m
 
-    server_fps = updates / seconds
-    target = min(loaded["fps"] * args.speed, 60.0)
+
+def summarise(args: argparse.Namespace, m: dict[str, Any]) -> dict[str, Any]:
+    """The figures `--json` prints (and the text report reads)."""
+    loaded, latency = m["loaded"], m["latency"]
     everything = [v for vs in latency.values() for v in vs]
     result = {
         "clip": args.clip,
         "clip_fps": loaded["fps"],
         "speed": args.speed,
-        "target_fps": target,
-        "server_updates_per_s": round(server_fps, 1),
-        "client_poses_per_s": round(poses / seconds, 1),
+        "target_fps": min(loaded["fps"] * args.speed, 60.0),
+        "server_updates_per_s": round(m["updates"] / m["seconds"], 1),
+        "client_poses_per_s": round(m["poses"] / m["seconds"], 1),
         "training_in_background": bool(args.train_cmd),
         "api_clients": args.clients,
         "api_requests": len(everything),
         "api_p50_ms": round(percentiles(everything)[0], 1),
         "api_p99_ms": round(percentiles(everything)[1], 1),
-        "api_1client_p50_ms": round(percentiles([v for vs in single.values() for v in vs])[0], 2),
+        "api_1client_p50_ms": round(percentiles([v for vs in m["single"].values() for v in vs])[0], 2),
         "per_endpoint_ms": {k: [round(x, 1) for x in percentiles(v)] for k, v in latency.items()},
     }
     if args.duration:
         result.update(
-            duration_s=args.duration, streams=args.streams, errors=errors, stream_events=events, client=args.client
+            duration_s=args.duration,
+            streams=args.streams,
+            errors=m["errors"],
+            stream_events=m["events"],
+            client=args.client,
         )
-    result.update(rollout=rollout, idle=idle)
-    if args.json:
-        print(json.dumps(result))
-        return
-    print(f"clip {args.clip}: {loaded['fps']:g} fps x speed {args.speed:g} -> target {target:g} updates/s")
-    print(f"  playback: server sent {server_fps:.1f} updates/s, a viser client received {poses / seconds:.1f} poses/s")
+    result.update(rollout=m["rollout"], idle=m["idle"])
+    return result
+
+
+def report(args: argparse.Namespace, m: dict[str, Any], result: dict[str, Any]) -> None:
+    """The text report: playback, API latency, then the rollout and idle figures when measured."""
+    fps, target, seconds = m["loaded"]["fps"], result["target_fps"], m["seconds"]
+    print(f"clip {args.clip}: {fps:g} fps x speed {args.speed:g} -> target {target:g} updates/s")
     print(
-        f"  API, {args.clients} concurrent clients, {len(everything)} requests: "
+        f"  playback: server sent {m['updates'] / seconds:.1f} updates/s,"
+        f" a viser client received {m['poses'] / seconds:.1f} poses/s"
+    )
+    print(
+        f"  API, {args.clients} concurrent clients, {result['api_requests']} requests: "
         f"p50 {result['api_p50_ms']} ms, p99 {result['api_p99_ms']} ms"
     )
     if args.duration:
+        errors, events = m["errors"], m["events"]
         print(f"  for {args.duration:g} s with {args.streams} streams open: {errors} errors, stream events {events}")
         print(f"  (request loops: {args.client} HTTP/1.1 client)")
     print(f"  API, one client: p50 {result['api_1client_p50_ms']} ms")
     for path, (p50, p99) in result["per_endpoint_ms"].items():
         print(f"    {path:<20} p50 {p50:7.1f} ms  p99 {p99:7.1f} ms")
-    if rollout:
+    if rollout := m["rollout"]:
         print(
             f"  rollout of {rollout['checkpoint']}: {rollout['steps_per_s']} steps/s over {rollout['seconds']} s "
             f"(control rate {rollout['control_rate']:g}/s; 1-s windows {rollout['slowest_1s']}"
             f"-{rollout['fastest_1s']})"
         )
-    if idle:
+    if idle := m["idle"]:
         print(
             f"  idle (scene paused, no stream, no viser client): server CPU {idle['core_percent']}% of a core "
             f"({idle['cpu_s']} s in {idle['seconds']} s)"
         )
     if args.train_cmd:
         print(f"  while running: {args.train_cmd}")
+
+
+def main() -> None:
+    args = parse_args()
+    m = measure(args)
+    result = summarise(args, m)
+    if args.json:
+        print(json.dumps(result))
+        return
+    report(args, m, result)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mimickit.envs.env_config import load_env_configs  # noqa: E402
+from mimickit.envs.env_builder import load_env_configs  # noqa: E402
 from mimickit.util.config import load_yaml  # noqa: E402
 from mimickit.util.errors import MimicKitError  # noqa: E402
 from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT  # noqa: E402

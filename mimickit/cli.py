@@ -2,7 +2,7 @@
 
 Every user mistake (bad clip, bad config, missing file) ends as one line on stderr and exit code 2.
 `train` also ends with 1 (an error after the run started: state failed) or 3 (diverged); 0 is finished
-or stopped (`mimickit.run_folder.ExitCode`).
+or stopped (`mimickit.learning.run_folder.ExitCode`).
 """
 
 from __future__ import annotations
@@ -168,7 +168,8 @@ def _video(args: argparse.Namespace) -> int:
     if args.model_file and not args.arg_file:
         raise MimicKitError("--model_file needs --arg_file (the env, agent and engine configs of the model)")
     frame_png = Path(args.frame_png) if args.frame_png else None
-    opts = VideoOptions(args.seconds, args.width, args.height, frame_png, DataPaths(args.data_dir))
+    size = {k: v for k in ("width", "height") if (v := getattr(args, k)) is not None}  # else VideoOptions'
+    opts = VideoOptions(args.seconds, frame_png=frame_png, data_paths=DataPaths(args.data_dir), **size)
     if args.motion:
         info = motion_video(args.motion, args.char, args.out, opts)
     else:
@@ -184,7 +185,24 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("train", help="train an agent (MimicKit arguments: --arg_file, --num_envs, --out_dir, ...)")
     sub.add_parser("test", help="test a checkpoint (MimicKit arguments: --arg_file, --model_file, --json, ...)")
+    _add_motion_parser(sub)
+    _add_checkpoint_parser(sub)
+    _add_bench_parser(sub)
+    _add_sim2sim_parser(sub)
+    _add_plot_parser(sub)
+    _add_video_parser(sub)
 
+    from mimickit.tools.evaluate import add_eval_parser
+    from mimickit.tools.onnx_export import add_export_parser
+
+    add_eval_parser(sub)
+    add_export_parser(sub)
+    return parser
+
+
+# One function per subcommand, in the order `mimickit --help` lists them; `sub` is build_parser's subparsers.
+def _add_motion_parser(sub: argparse._SubParsersAction) -> None:
+    """`mimickit motion info|validate|convert`."""
     motion = sub.add_parser("motion", help="inspect, validate and convert motion clips")
     msub = motion.add_subparsers(dest="motion_command", required=True)
 
@@ -222,6 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
     conv.add_argument("--data_dir", help="a MimicKit data folder for data/... paths (the SMPL character)")
     conv.set_defaults(func=_motion_convert)
 
+
+def _add_checkpoint_parser(sub: argparse._SubParsersAction) -> None:
+    """`mimickit checkpoint export`."""
     ckpt = sub.add_parser("checkpoint", help="work with agent checkpoints (.pt)")
     csub = ckpt.add_subparsers(dest="checkpoint_command", required=True)
     exp = csub.add_parser("export", help="drop the optimiser states (for shipping a trained model)")
@@ -230,6 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--reference", action="store_true", help="drop _train_state too (MimicKit's strict loader)")
     exp.set_defaults(func=_checkpoint_export)
 
+
+def _add_bench_parser(sub: argparse._SubParsersAction) -> None:
+    """`mimickit bench`."""
     bench = sub.add_parser("bench", help="env steps/s with random actions vs raw MuJoCo rollout on the same model")
     bench.add_argument("--engine_config", default="data/engines/mujoco_engine.yaml")
     bench.add_argument("--env_config", default="data/envs/deepmimic_humanoid_env.yaml")
@@ -255,6 +279,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true", help="print JSON (one object, or a list for several counts)")
     bench.set_defaults(func=_bench)
 
+
+def _add_sim2sim_parser(sub: argparse._SubParsersAction) -> None:
+    """`mimickit sim2sim`."""
     s2s = sub.add_parser("sim2sim", help="one policy or clip from one initial state in two engines: divergence")
     s2s.add_argument("--arg_file", required=True, help="arg file naming the env (with a clip), agent and engine")
     src = s2s.add_mutually_exclusive_group(required=True)
@@ -266,6 +293,9 @@ def build_parser() -> argparse.ArgumentParser:
     s2s.add_argument("--json", action="store_true", help="print the report (per-step series and summary) as JSON")
     s2s.set_defaults(func=_sim2sim)
 
+
+def _add_plot_parser(sub: argparse._SubParsersAction) -> None:
+    """`mimickit plot`."""
     plot = sub.add_parser("plot", help="learning curves of runs (log.txt, metrics.jsonl or run folders) to a PNG")
     plot.add_argument("logs", nargs="+", metavar="LOG", help="log.txt / metrics.jsonl files or run folders")
     plot.add_argument("--out", required=True, help="PNG to write")
@@ -273,6 +303,9 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("--y", nargs="+", metavar="COL", help="columns, one subplot each (default: returns, lengths)")
     plot.set_defaults(func=_plot)
 
+
+def _add_video_parser(sub: argparse._SubParsersAction) -> None:
+    """`mimickit video`."""
     video = sub.add_parser("video", help="render a policy (with its reference as a ghost) or a clip to an MP4")
     video.add_argument("--model_file", help="checkpoint (.pt) of a policy; needs --arg_file")
     video.add_argument("--arg_file", help="arg file naming the env, agent and engine configs of the model")
@@ -282,17 +315,12 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument("--char", help="MJCF character of the clip")
     video.add_argument("--out", required=True, help="MP4 to write")
     video.add_argument("--seconds", type=float, default=5.0)
-    video.add_argument("--width", type=int, default=320)
-    video.add_argument("--height", type=int, default=240)
+    video.add_argument("--width", type=int, help="pixels, even (default 640, as the studio's Export MP4)")
+    video.add_argument("--height", type=int, help="pixels, even (default 480)")
     video.add_argument("--frame_png", help="also save the last frame as a PNG")
     video.add_argument("--rand_seed", type=int, default=0, help="seed of the policy episode (start time in the clip)")
     video.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
     video.set_defaults(func=_video)
-
-    from mimickit.tools.evaluate import add_eval_parser
-
-    add_eval_parser(sub)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

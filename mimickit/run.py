@@ -7,7 +7,7 @@ visualize, video; plus data_dir (a MimicKit data folder for `data/...` paths), m
 dataset yaml that replaces the env config's `motion_file`), max_hours (a wall-time budget: training ends,
 as at max_samples, once the recorded wall time reaches it) and json (test mode: print one JSON object).
 
-A training run's folder (`--out_dir`, see `mimickit.run_folder`) records the run: args.json (argv,
+A training run's folder (`--out_dir`, see `mimickit.learning.run_folder`) records the run: args.json (argv,
 effective values, the seed used, versions), the configs as trained, state.json (running, then
 finished / stopped / diverged / failed with the line that says why). Without `--rand_seed` a seed is
 drawn and recorded; `--rand_seed <seed>` repeats a CPU run's metrics rows exactly (same num_envs).
@@ -15,7 +15,7 @@ drawn and recorded; `--rand_seed <seed>` repeats a CPU run's metrics rows exactl
 with a new budget.
 SIGTERM or Ctrl-C during training saves a checkpoint and exits 0 (state stopped).
 Several processes: `--devices cpu cpu` spawns one per device; under torchrun (`torchrun --nproc-per-node 2
--m mimickit.cli train ...`, see `mimickit.torchrun_env`) every process is already started and joins the
+-m mimickit.cli train ...`, see `mimickit.runner.torchrun_env`) every process is already started and joins the
 group through env://; rank 0 draws the seed and broadcasts it, and writes the run folder, as with
 `--devices`. args.json's `launch` says which (`spawn` or `torchrun`, world size, nodes).
 Exit codes: 0 finished or stopped, 1 failed after the run started, 2 refused before anything started
@@ -24,16 +24,15 @@ Exit codes: 0 finished or stopped, 1 failed after the run started, 2 refused bef
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
-import random
-import secrets
 import signal
 import socket
 import sys
 import time
 import traceback
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -44,32 +43,24 @@ import numpy as np
 import torch
 import yaml
 
-from mimickit.run_args import check_run_args
-from mimickit.run_folder import EndState, ExitCode, RunFolder
-from mimickit.torchrun_env import TorchrunEnv, check_master_port, node_devices, read_torchrun_env
+from mimickit.learning.run_folder import STATE_FILE, EndState, ExitCode, RunFolder
+from mimickit.runner.args import check_run_args
+from mimickit.runner.inputs import RunInputs, build_run_env, resolve_inputs
+from mimickit.runner.policy import test_result
+from mimickit.runner.seeding import draw_seed, seed_everything
+from mimickit.runner.torchrun_env import TorchrunEnv, check_master_port, node_devices, read_torchrun_env
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
 from mimickit.util.malloc_tuning import tune_malloc
-from mimickit.util.paths import PROJECT_DATA, DataPaths, atomic_write_bytes
+from mimickit.util.paths import atomic_write_bytes
 from mimickit.util.warn import one_line_warnings
 
 NO_LIMIT = int(np.iinfo(np.int64).max)
 REFUSAL_WAIT_S = 10.0
+DISK_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS)
+"""A full, over-quota or read-only disk: the run fails with one line, no traceback."""
 """Under torchrun, how long a refusing process other than LOCAL_RANK 0 waits to be ended (see `_print_refusal`)."""
-
-
-@dataclass
-class RunInputs:
-    """The files a run reads, resolved and checked before anything starts."""
-
-    env_file: str
-    engine_file: str | None
-    agent_file: str | None
-    motion_file: str | None
-    """`--motion_file`, resolved (None: the env config's own clip or dataset)."""
-    data_paths: DataPaths = PROJECT_DATA
-    """Where the configs' `data/...` files are found (`--data_dir`, then the project's data)."""
 
 
 def default_devices() -> list[str]:
@@ -80,23 +71,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def draw_seed(args: ArgParser) -> tuple[int, str]:
-    """(base seed, "rand_seed" | "drawn"): `--rand_seed`, or a fresh random one when it is absent or < 0."""
-    seed = args.parse_int("rand_seed", -1)
-    if seed >= 0:
-        return seed, "rand_seed"
-    return secrets.randbelow(2**31), "drawn"
-
-
-def seed_everything(args: ArgParser, rank: int, base_seed: int | None = None) -> int:
-    """Seed Python, NumPy and torch with `base_seed` (default: `draw_seed`) + 41 × rank; returns it."""
-    seed = (draw_seed(args)[0] if base_seed is None else base_seed) + 41 * rank
-    random.seed(seed)
-    np.random.seed(seed % 2**32)
-    torch.manual_seed(seed)
-    return seed
 
 
 def run(
@@ -196,74 +170,6 @@ def check_resume_budget(model_file: str, max_samples: int, hours: float | None =
     return {"model_file": str(Path(model_file).resolve()), "iteration": train_state["iteration"], "samples": samples}
 
 
-def resolve_inputs(args: ArgParser, data_paths: DataPaths | None = None) -> RunInputs:
-    """The config files and `--motion_file`, each checked to exist (one error line otherwise), found
-    by `data_paths` (by default `--data_dir`'s, then the project's data)."""
-    paths = data_paths or DataPaths(args.parse_string("data_dir", "") or None)
-    motion = args.parse_string("motion_file", "")
-    if args.has_key("motion_file") and not motion:
-        raise MimicKitError("--motion_file needs a value (a .pkl clip or a dataset .yaml)")
-    motion_path = paths.resolve(motion) if motion else None
-    if motion_path is not None and not motion_path.is_file():
-        raise MimicKitError(f"--motion_file: file not found: {motion}")
-    return RunInputs(
-        env_file=_config_path(args, "env_config", paths, required=True) or "",
-        engine_file=_config_path(args, "engine_config", paths),
-        agent_file=_config_path(args, "agent_config", paths),
-        motion_file=str(motion_path) if motion_path is not None else None,
-        data_paths=paths,
-    )
-
-
-def build_run_env(inputs: RunInputs, num_envs: int, device: str) -> tuple[Any, dict[str, Any]]:
-    """The env of the configs, `--motion_file` replacing the env config's clip or dataset; plus what
-    args.json records about it (env_name, char_file, the motion file trained on and where it came from)."""
-    from mimickit.envs.env_builder import build_env_from_configs
-    from mimickit.envs.env_config import load_env_configs
-
-    env_cfg, engine_cfg = load_env_configs(inputs.env_file, inputs.engine_file, inputs.motion_file)
-    motion = getattr(env_cfg, "motion_file", None)
-    info = {
-        "env_name": env_cfg.env_name,
-        "char_file": str(inputs.data_paths.resolve(env_cfg.char_file)),
-        "motion_file": str(inputs.data_paths.resolve(motion)) if motion else None,
-        "motion_file_from": None if not motion else ("--motion_file" if inputs.motion_file else "env_config"),
-        "engine_name": engine_cfg.engine_name,
-    }
-    env = build_env_from_configs(env_cfg, engine_cfg, num_envs, device, visualize=False, data_paths=inputs.data_paths)
-    return env, info
-
-
-def test_result(agent: Any, env: Any, episodes: int) -> dict[str, Any]:
-    """`mimickit test`'s result: the agent's test episodes (`test_model`), the env's tracking errors
-    (`test_tracking`) and how the episodes ended (`episode_ends`: fail / succ / time counts summed over
-    processes; empty for envs without a reference motion)."""
-    from mimickit.learning import mp_util
-
-    result: dict[str, Any] = agent.test_model(episodes).to_dict()
-    result["tracking"] = test_tracking(getattr(env, "tracking_summary", dict)())
-    ends = getattr(env, "episode_end_summary", dict)()
-    result["episode_ends"] = {k: int(mp_util.reduce_sum(v)) for k, v in ends.items()}
-    return result
-
-
-def test_tracking(summary: dict[str, float]) -> dict[str, float]:
-    """The env's tracking errors over the test steps, averaged over processes, plus `pos_err_m`: the
-    reference code's position error (body_pos_err, the mean over bodies of the root-relative body
-    position error, metres; no global root term). The paper's Table 1 errors are the env's
-    `paper_pos_err_m` and `paper_dof_vel_err` (deepmimic_rewards.paper_errors). Empty for envs without
-    a reference motion."""
-    from mimickit.learning import mp_util
-
-    tracking = {k: float(mp_util.reduce_mean(v)) for k, v in sorted(summary.items())}
-    if "body_pos_err" in tracking:
-        tracking["pos_err_m"] = tracking["body_pos_err"]
-    return tracking
-
-
-# ---------------------------------------------------------------- training
-
-
 def _train(
     args: ArgParser,
     argv: list[str],
@@ -281,7 +187,10 @@ def _train(
     root = mp_util.is_root_proc()
     if root:
         effective = _effective_values(args, inputs, env_info, agent, folder, max_samples, launch)
-        _start_run_folder(folder, args, argv, inputs, effective, seed, resume, launch)
+        try:
+            _start_run_folder(folder, args, argv, inputs, effective, seed, resume, launch)
+        except OSError as e:  # the --out_dir probe passed, then the disk filled up: still one line
+            raise MimicKitError(_failure_line(e, folder)) from None
     signals = _install_stop_handlers(agent)
     try:
         summary = agent.train_model(
@@ -292,19 +201,58 @@ def _train(
             max_hours=max_hours(args),
         )
     except Exception as e:  # noqa: BLE001 - any error ends the run as failed, with its one line
-        line = _one_line(e)
+        line = _failure_line(e, folder)
+        if not isinstance(e, MimicKitError) and _disk_error(e) is None:
+            _quietly(traceback.print_exc)
         if root:
-            folder.write_state(EndState.FAILED, line, iteration=agent.get_iteration(), samples=agent.get_sample_count())
-        if not isinstance(e, MimicKitError):
-            traceback.print_exc()
-        print(f"error: {line}", file=sys.stderr, flush=True)
+            line += _record_state(folder, EndState.FAILED, line, agent.get_iteration(), agent.get_sample_count())
+        _quietly(print, f"error: {line}", file=sys.stderr, flush=True)
         return ExitCode.FAILED
     state, reason, code = _end_state(summary, max_samples, max_hours(args), signals, folder.model_file.is_file())
     if root:
-        folder.write_state(state, reason, iteration=summary.iterations, samples=summary.samples)
+        note = _record_state(folder, state, reason, summary.iterations, summary.samples)
+        if note:
+            _quietly(print, f"warning: {note.strip(' ()')}", file=sys.stderr, flush=True)
         if state != EndState.DIVERGED:  # the divergence line is already on the terminal
-            print(f"{state.value}: {reason}", flush=True)
+            _quietly(print, f"{state.value}: {reason}", flush=True)
     return code
+
+
+def _record_state(folder: RunFolder, state: EndState, reason: str, iteration: int, samples: int) -> str:
+    """Write state.json; "" when written, else a note for the terminal line saying it is not."""
+    try:
+        folder.write_state(state, reason, iteration=iteration, samples=samples)
+    except OSError as e:
+        return f" ({STATE_FILE} not written: {e.strerror or e})"
+    return ""
+
+
+def _disk_error(e: BaseException) -> OSError | None:
+    """The full, over-quota or read-only disk behind `e` (itself, or what it was raised from), if any."""
+    seen: list[BaseException] = []
+    cur: BaseException | None = e
+    while cur is not None and cur not in seen:
+        if isinstance(cur, OSError) and cur.errno in DISK_ERRNOS:
+            return cur
+        seen.append(cur)
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
+def _failure_line(e: BaseException, folder: RunFolder) -> str:
+    """The one line of an error that ended the run: a full or read-only disk says which file (or
+    which folder, when the OS did not say) and why."""
+    disk = _disk_error(e)
+    if disk is None or isinstance(e, MimicKitError):
+        return _one_line(e)
+    name = disk.filename or f"into the run folder {folder.path} or the trainer's output"
+    return f"cannot write {name}: {disk.strerror}"
+
+
+def _quietly(fn: Any, *args: Any, **kwargs: Any) -> None:
+    """Print to a terminal that may itself be a file on the full disk (the studio's console.log)."""
+    with contextlib.suppress(OSError):
+        fn(*args, **kwargs)
 
 
 def _end_state(
@@ -370,7 +318,7 @@ def _start_run_folder(
     launch: dict[str, Any],
 ) -> None:
     """Configs as trained, args.json and state.json `running` (rank 0), before the first iteration."""
-    from mimickit.run_record import args_record
+    from mimickit.runner.record import args_record
 
     folder.path.mkdir(parents=True, exist_ok=True)
     for role, src in (("engine", inputs.engine_file), ("env", inputs.env_file), ("agent", inputs.agent_file)):
@@ -402,18 +350,6 @@ def _one_line(e: BaseException) -> str:
     text = str(e).strip()
     first = text.splitlines()[0] if text else ""
     return first if isinstance(e, MimicKitError) else f"{e.__class__.__name__}: {first}".rstrip(": ")
-
-
-def _config_path(args: ArgParser, key: str, data_paths: DataPaths, required: bool = False) -> str | None:
-    value = args.parse_string(key, "")
-    if not value:
-        if required:
-            raise MimicKitError(f"--{key} is required")
-        return None
-    path = data_paths.resolve(value)
-    if not path.is_file():
-        raise MimicKitError(f"--{key}: file not found: {value}")
-    return str(path)
 
 
 def _install_stop_handlers(agent: Any) -> list[str]:

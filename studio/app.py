@@ -2,179 +2,45 @@
 and the dashboard page into one ASGI app.
 
 viser serves the 3D scene on an internal loopback port (it cannot be mounted inside FastAPI); the
-studio relays it under `/scene/` (`studio.scene_proxy`) and the dashboard at `/` embeds that in an
+studio relays it under `/scene/` (`studio.scene.proxy`) and the dashboard at `/` embeds that in an
 iframe, so a user opens one URL and every request, the scene's included, passes the same checks.
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib
 import io
-import logging
+import pkgutil
 import threading
-from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import AsyncIterator
 
 import torch
-import viser
-from fastapi import FastAPI, Request
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi import APIRouter, FastAPI
+from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from mimickit.anim.motion import load_motion
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_WEB_DIR
-from studio.api import checkpoints as checkpoints_api
-from studio.api import compare as compare_api
-from studio.api import evals as evals_api
-from studio.api import library as library_api
-from studio.api import need
-from studio.api import runs as runs_api
-from studio.api import scene as scene_api
 from studio.api import stream as stream_api
-from studio.api import sweeps as sweeps_api
-from studio.api import videos as videos_api
-from studio.clip_pose import pose_clip
+from studio.api.errors import add_error_handlers
+from studio.jobs.kinds import JOB_KINDS
 from studio.library import Library
-from studio.playable import Playable
-from studio.player import Player
-from studio.player_gui import SceneKeys
-from studio.registry import Registry
-from studio.rollout import Rollout, RolloutPlayer, RolloutSource
-from studio.rollout_pair import RolloutPair
-from studio.runs import RunError, RunManager
-from studio.scene import StudioScene
-from studio.scene_proxy import VISER_HOST, add_scene_proxy
-from studio.scene_thread import SceneThread, SceneTimeout
-from studio.security import HostPolicy, PathError, RequestGuard, confine
+from studio.runs.manager import RunManager
+from studio.runs.registry import Registry
+from studio.runs.run_list import RunList
+from studio.scene.clip_pose import pose_clip
+from studio.scene.player import Player
+from studio.scene.player_gui import SceneKeys
+from studio.scene.proxy import VISER_HOST, add_scene_proxy, guarded_viser_server
+from studio.scene.view import StudioScene
+from studio.security import HostPolicy, RequestGuard, confine
+from studio.services import Studio
 from studio.settings import Settings
 
-LOG = logging.getLogger("studio")
 WEB_DIR = PROJECT_WEB_DIR
 REGISTRY_FILE = "registry.sqlite"
-
-
-@dataclass
-class Studio:
-    """The services behind the API; handlers reach it as `request.app.state.studio`."""
-
-    settings: Settings
-    library: Library
-    registry: Registry
-    runs: RunManager
-    viser_server: viser.ViserServer | None = None
-    scene: StudioScene | None = None
-    player: Player | None = None
-    rollout: RolloutPlayer | None = None
-    # The one thread that touches the scene, the clip player and the rollout (studio.scene_thread).
-    scene_thread: SceneThread = field(default_factory=SceneThread)
-
-    @property
-    def viser_port(self) -> int | None:
-        return self.viser_server.get_port() if self.viser_server else None
-
-    @property
-    def mode(self) -> str:
-        return "rollout" if self.rollout is not None else "clip"
-
-    def active(self) -> Playable | None:
-        """What the scene commands drive: the rollout while one is loaded, else the clip player."""
-        return self.rollout if self.rollout is not None else self.player
-
-    def command(self, fn: Callable[[Playable], object]) -> dict[str, Any]:
-        """`fn(active)` on the scene thread and the state after it (one command: nothing runs between);
-        503 when there is no scene."""
-
-        def run() -> dict[str, Any]:
-            target = self.active()
-            need(target, "the 3D scene")
-            fn(target)
-            return target.snapshot()
-
-        return self.scene_thread.call(run)
-
-    def load_rollout(
-        self, source: RolloutSource, *, play: bool = True, partner: RolloutSource | None = None
-    ) -> dict[str, Any]:
-        """Build the rollout (MimicKitError when the checkpoint does not fit) and show it instead of
-        the clip or the previous rollout; its state. `partner`: B of an A/B rollout (`source` is A);
-        MimicKitError when the two cannot pair, before the rollout shown now ends."""
-        built = _build_rollouts(source, partner)  # slow (envs, agents, checkpoints): off the scene thread
-        rollout = built[0]
-        try:
-            pair = RolloutPair(*built) if partner is not None else None  # its first start: before the hand-over
-        except BaseException:
-            _close_all(built)
-            raise
-
-        def install() -> dict[str, Any]:
-            self._end_rollout()
-            if self.player:
-                self.player.pause()
-            self.rollout = RolloutPlayer(rollout, self.scene, self.scene_thread, play=play, pair=pair)
-            self.scene_thread.drive(self.rollout)
-            return self.rollout.snapshot()
-
-        try:
-            return self.scene_thread.call(install)
-        except BaseException:
-            if self.rollout is None or self.rollout.rollout is not rollout:
-                _close_all(built)  # never shown: nothing else will close them
-            raise
-
-    def end_rollout(self) -> None:
-        """Stop and forget the rollout (before a clip is loaded)."""
-        self.scene_thread.call(self._end_rollout)
-
-    def _end_rollout(self) -> None:
-        rp, self.rollout = self.rollout, None
-        self.scene_thread.drive(*([self.player] if self.player else []))
-        if rp is None:
-            return
-        rp.close()
-        if self.scene:
-            self.scene.end_rollout()
-
-    def close(self) -> None:
-        with contextlib.suppress(Exception):  # a stuck scene thread must not keep the runs going
-            self.end_rollout()
-        self.scene_thread.close()
-        self.runs.close()
-        if self.viser_server:
-            with contextlib.redirect_stdout(io.StringIO()):  # viser prints "Server stopped"
-                self.viser_server.stop()
-
-
-def _build_rollouts(source: RolloutSource, partner: RolloutSource | None) -> list[Rollout]:
-    """A `Rollout` of `source`, and of `partner` when given; those built are closed when one fails."""
-    sides = [("A", source), ("B", partner)] if partner is not None else [("", source)]
-    built: list[Rollout] = []
-    try:
-        for side, s in sides:
-            built.append(_build_side(side, s))
-    except BaseException:
-        _close_all(built)
-        raise
-    return built
-
-
-def _build_side(side: str, source: RolloutSource) -> Rollout:
-    """`Rollout(source)`; an A/B side's error (`side` "A" or "B") says which side, still in one line."""
-    try:
-        return Rollout(source)
-    except Exception as e:
-        if not side:
-            raise
-        detail = (str(e).strip().splitlines() or [""])[0]
-        if not isinstance(e, MimicKitError):  # a broken config: as `roll_out` says it, with B's checkpoint
-            detail = f"cannot roll out {source.checkpoint}: {type(e).__name__}: {detail}"
-        raise MimicKitError(f"{side}: {detail}") from None
-
-
-def _close_all(rollouts: list[Rollout]) -> None:
-    for r in rollouts:
-        r.close()
 
 
 def create_studio(settings: Settings) -> Studio:
@@ -184,23 +50,34 @@ def create_studio(settings: Settings) -> Studio:
     torch.set_num_threads(1)
     settings.runs_dir.mkdir(parents=True, exist_ok=True)
     registry = Registry(settings.runs_dir / REGISTRY_FILE)
-    studio = Studio(settings, Library(settings), registry, RunManager(settings, registry))
+    # The job lists at start: those a server before this one recorded (a job it died with: failed).
+    jobs = {kind.folder_name: kind(settings) for kind in JOB_KINDS}
+    studio = Studio(settings, Library(settings), registry, RunManager(settings, registry), RunList(registry), jobs)
     if settings.start_viser:
-        # viser prints its own banner; the studio prints one URL (the dashboard's) instead.
-        with contextlib.redirect_stdout(io.StringIO()):
-            # Loopback only, whatever --host says: browsers reach it through the studio's /scene/.
-            studio.viser_server = viser.ViserServer(
-                host=VISER_HOST, port=settings.viser_port, label="MimicKit Studio", verbose=False
-            )
-        studio.scene = StudioScene(studio.viser_server)
-        studio.player = Player(studio.scene, studio.scene_thread)
-        studio.scene_thread.call(studio.scene_thread.drive, studio.player)
-        SceneKeys(studio.viser_server, active=studio.active)  # the page is the one control surface; keys queue
-        if settings.startup_clip is not None:
-            _play_startup_clip(studio)
+        _start_scene(studio)
     # Reading every clip once takes a second or two with a large data folder: do it before anyone asks.
     threading.Thread(target=studio.library.motions, name="library-warmup", daemon=True).start()
     return studio
+
+
+def _start_scene(studio: Studio) -> None:
+    """The viser server, its drawing and the clip player; the startup clip playing, if one was named."""
+    settings, scene = studio.settings, studio.scene
+    # viser prints its own banner; the studio prints one URL (the dashboard's) instead.
+    with contextlib.redirect_stdout(io.StringIO()):
+        # Loopback only, whatever --host says, and only the relay's requests: browsers reach it
+        # through the studio's /scene/.
+        scene.viser_server = guarded_viser_server(
+            host=VISER_HOST, port=settings.viser_port, label="MimicKit Studio", verbose=False
+        )
+    scene.view = StudioScene(scene.viser_server)
+    scene.player = Player(scene.view, scene.thread)
+    scene.thread.call(scene.thread.drive, scene.player)
+    # A browser opening the 3D view wakes the scene thread: the clip is drawn at full rate again at once.
+    scene.viser_server.on_client_connect(lambda _client: scene.thread.submit(lambda: None))
+    SceneKeys(scene.viser_server, active=studio.active)  # the page is the one control surface; keys queue
+    if settings.startup_clip is not None:
+        _play_startup_clip(studio)
 
 
 def _play_startup_clip(studio: Studio) -> None:
@@ -214,7 +91,16 @@ def _play_startup_clip(studio: Studio) -> None:
         if guessed is None:
             raise MimicKitError(f"--clip {clip}: no character in the data folders fits it; name one with --char")
         char = confine(guessed, settings.readable_roots)
-    studio.player.load(pose_clip(clip, char), play=True)
+    studio.scene.player.load(pose_clip(clip, char), play=True)
+
+
+def api_routers() -> list[APIRouter]:
+    """The router of every module of `studio/api/` that defines one (`router`), served under /api: a
+    new panel's module is found without a list to extend."""
+    import studio.api as api
+
+    modules = (importlib.import_module(f"studio.api.{m.name}") for m in pkgutil.iter_modules(api.__path__))
+    return [m.router for m in modules if isinstance(getattr(m, "router", None), APIRouter)]
 
 
 def create_app(settings: Settings) -> FastAPI:
@@ -224,13 +110,9 @@ def create_app(settings: Settings) -> FastAPI:
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        # The job lists at start: those a server before this one recorded (a job it died with: failed).
-        jobs = [evals_api.jobs_in(app.state, settings), videos_api.jobs_in(app.state, settings)]
         yield
         if close_proxy is not None:
             await close_proxy()
-        for queue in jobs:
-            queue.close()  # a running job is killed; active jobs are recorded as failed (the server stopped)
         studio.close()
 
     app = FastAPI(
@@ -240,15 +122,15 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.studio = studio
+    studio.live = stream_api.live_state(studio)
     if settings.needs_token and not settings.token:
         raise ValueError(f"binding {settings.host} (not loopback) requires a token")
     hosts = HostPolicy(settings.host, settings.allowed_hosts)
     app.add_middleware(RequestGuard, hosts=hosts, token=settings.token if settings.needs_token else None)
 
-    routers = (library_api, scene_api, runs_api, checkpoints_api, compare_api, stream_api, evals_api, sweeps_api)
-    for module in (*routers, videos_api):
-        app.include_router(module.router, prefix="/api")
-    _add_error_handlers(app)
+    for router in api_routers():
+        app.include_router(router, prefix="/api")
+    add_error_handlers(app)
     close_proxy = add_scene_proxy(app, lambda: studio.viser_port)
 
     @app.get("/", include_in_schema=False)
@@ -257,31 +139,3 @@ def create_app(settings: Settings) -> FastAPI:
 
     app.mount("/web", StaticFiles(directory=WEB_DIR), name="web")
     return app
-
-
-def _add_error_handlers(app: FastAPI) -> None:
-    """User mistakes become one message with a 4xx status, never a traceback."""
-
-    @app.exception_handler(MimicKitError)
-    async def _mimickit_error(_: Request, e: MimicKitError) -> JSONResponse:
-        return JSONResponse({"detail": str(e)}, status_code=400)
-
-    @app.exception_handler(PathError)
-    async def _path_error(_: Request, e: PathError) -> JSONResponse:
-        return JSONResponse({"detail": str(e)}, status_code=e.status)
-
-    @app.exception_handler(SceneTimeout)
-    async def _scene_timeout(_: Request, e: SceneTimeout) -> JSONResponse:
-        return JSONResponse({"detail": str(e)}, status_code=503)
-
-    @app.exception_handler(RunError)
-    async def _run_error(_: Request, e: RunError) -> JSONResponse:
-        return JSONResponse({"detail": str(e)}, status_code=e.status)
-
-    @app.exception_handler(Exception)
-    async def _unexpected(request: Request, e: Exception) -> JSONResponse:
-        # The last resort: the traceback goes to the server's log, the page gets one line.
-        LOG.error("%s %s failed", request.method, request.url.path, exc_info=e)
-        first = (str(e).strip().splitlines() or [""])[0][:300]
-        detail = f"internal error in {request.url.path}: {type(e).__name__}: {first} (traceback in the server log)"
-        return JSONResponse({"detail": detail}, status_code=500)

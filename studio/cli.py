@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import shlex
@@ -19,10 +20,11 @@ from pathlib import Path
 
 import uvicorn
 
+from mimickit.runner.args import MULTI_VALUE_ARGS
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import DataPaths
 from mimickit.util.warn import one_line_warnings
-from studio.executors.base import EXECUTORS
+from studio.runs.executors.base import EXECUTORS
 from studio.security import new_token
 from studio.settings import DEFAULT_TRAINER, DEMO_CLIP, Settings, parse_trainer
 
@@ -33,6 +35,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mimickit-studio", description="a web studio for MimicKit clips and runs")
     sub = parser.add_subparsers(dest="command", required=True)
     serve = sub.add_parser("serve", help="start the studio server and print its URL")
+    _add_serve_options(serve)
+    _add_serve_limits(serve)
+    add_sweep_parser(sub)
+    _add_replay_parser(sub)
+    return parser
+
+
+def _add_serve_options(serve: argparse.ArgumentParser) -> None:
+    """Where `serve` listens, whom it lets in, what it reads and shows first."""
     serve.add_argument("--host", default="127.0.0.1", help="address to bind; anything but loopback needs a token")
     serve.add_argument("--port", type=int, default=8000, help="dashboard/API port (0: a free one)")
     serve.add_argument(
@@ -51,7 +62,29 @@ def build_parser() -> argparse.ArgumentParser:
         "--clip", default=str(DEMO_CLIP), help="the clip playing when the page opens ('none': an empty scene)"
     )
     serve.add_argument("--char", help="the MJCF character for --clip (default: guessed from its frame width)")
+
+
+def _add_serve_limits(serve: argparse.ArgumentParser) -> None:
+    """What `serve` runs and how much of it: runs at once, queues, time limits, the trainer, the executor."""
     serve.add_argument("--max-concurrent-runs", type=int, default=1, help="runs trained at once; the rest queue")
+    serve.add_argument(
+        "--max-queued-runs",
+        type=int,
+        default=Settings.max_queued_runs,
+        help="training runs that may wait in the queue at once",
+    )
+    serve.add_argument(
+        "--max-queued-jobs",
+        type=int,
+        default=Settings.max_queued_jobs,
+        help="eval (and video) jobs that may wait at once",
+    )
+    serve.add_argument(
+        "--eval-time-limit", type=float, default=Settings.eval_time_limit_s, help="seconds an eval job may run"
+    )
+    serve.add_argument(
+        "--video-time-limit", type=float, default=Settings.video_time_limit_s, help="seconds a video job may run"
+    )
     serve.add_argument(
         "--trainer",
         default=shlex.join(DEFAULT_TRAINER),
@@ -68,7 +101,9 @@ def build_parser() -> argparse.ArgumentParser:
         default="http://127.0.0.1:8265",
         help="the Ray cluster's dashboard address (Job Submission API), for --executor ray",
     )
-    add_sweep_parser(sub)
+
+
+def _add_replay_parser(sub: argparse._SubParsersAction) -> None:
     replay = sub.add_parser(
         "export-replay", help="write a clip or a policy rollout as one HTML file that plays offline in a browser"
     )
@@ -82,7 +117,6 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--no-follow", action="store_true", help="a fixed world; by default it moves with the root")
     replay.add_argument("--data-dir", type=Path, help="a MimicKit data folder for data/... paths")
     replay.add_argument("--out", required=True, help="F.html (standalone page) or F.viser (viser recording)")
-    return parser
 
 
 def add_sweep_parser(sub: argparse._SubParsersAction) -> None:
@@ -110,16 +144,30 @@ def add_sweep_parser(sub: argparse._SubParsersAction) -> None:
 
 def sweep_body(args: argparse.Namespace) -> dict[str, object]:
     """The POST /api/sweeps body of `mimickit-studio sweep ...`."""
-    values: dict[str, list[str]] = {}
+    values: dict[str, list[str | int | float | list[str]]] = {}
     for item in args.values:
         key, sep, text = item.partition("=")
         if not sep or not key.strip() or not text.strip():
             raise MimicKitError(f"--values {item!r}: write KEY=V1,V2,... (e.g. rand_seed=0,1,2)")
-        values.setdefault(key.strip().removeprefix("--"), []).extend(v.strip() for v in text.split(","))
+        key = key.strip().removeprefix("--")
+        several = key in MULTI_VALUE_ARGS  # "devices=cpu cpu": one value of two argv items, sent as a list
+        values.setdefault(key, []).extend(v.split() if several else _typed(v.strip()) for v in text.split(","))
     body = {"arg_file": args.arg_file, "values": values, "dataset": args.dataset, "name": args.name}
     body |= {"num_envs": args.num_envs, "max_samples": args.max_samples, "max_hours": args.max_hours}
     body |= {"num_cpus": args.num_cpus, "num_gpus": args.num_gpus}
     return {k: v for k, v in body.items() if v is not None}
+
+
+def _typed(text: str) -> str | int | float:
+    """A number stays a number (as the page sends it): the studio takes no string for an integer field."""
+    for kind in (int, float):
+        try:
+            number = kind(text)
+        except ValueError:
+            continue
+        if math.isfinite(number):
+            return number
+    return text
 
 
 def sweep(args: argparse.Namespace) -> int:
@@ -148,7 +196,7 @@ def export_replay(args: argparse.Namespace) -> int:
 
 
 def _export_replay(args: argparse.Namespace) -> int:
-    from studio import replay  # imports viser, torch, mujoco: only when asked
+    from studio.scene import replay  # imports viser, torch, mujoco: only when asked
 
     if bool(args.motion) == bool(args.model_file):
         raise MimicKitError("give either --motion CLIP [--char MJCF] or --model_file CHECKPOINT")
@@ -159,7 +207,7 @@ def _export_replay(args: argparse.Namespace) -> int:
         char = paths.resolve(args.char) if args.char else _guess_char(clip, paths)
         info = replay.export_clip_replay(clip, char, args.out, follow=not args.no_follow)
     else:
-        from studio.rollout import source_for_checkpoint
+        from studio.scene.rollout import source_for_checkpoint
 
         configs = {k: paths.resolve(v) if (v := getattr(args, k)) else None for k in CONFIG_ARGS}
         source = source_for_checkpoint(paths.resolve(args.model_file), **configs)
@@ -202,6 +250,13 @@ def serve(args: argparse.Namespace) -> int:
     )
     if args.runs_dir:
         settings.runs_dir = args.runs_dir
+    for flag, value in (("--max-queued-jobs", args.max_queued_jobs), ("--eval-time-limit", args.eval_time_limit),
+                        ("--video-time-limit", args.video_time_limit),
+                        ("--max-queued-runs", args.max_queued_runs)):  # fmt: skip
+        if not value > 0:
+            raise MimicKitError(f"{flag} must be positive, got {value:g}")
+    settings.max_queued_jobs, settings.max_queued_runs = args.max_queued_jobs, args.max_queued_runs
+    settings.eval_time_limit_s, settings.video_time_limit_s = args.eval_time_limit, args.video_time_limit
     if args.clip.lower() == "none":
         settings.startup_clip = None
     elif Path(args.clip).resolve() != DEMO_CLIP.resolve() or args.char:

@@ -24,8 +24,8 @@ from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_yaml_text, read_text_file
 from mimickit.util.errors import MimicKitError
 from mimickit.util.warn import collect_warnings
-from studio.clip_pose import default_pose
 from studio.parsing import read_motion
+from studio.scene.clip_pose import default_pose
 from studio.security import PathError, confine, display_path
 from studio.settings import Settings
 

@@ -1,8 +1,9 @@
-"""What `GET /api/stream` pushes, read off the event loop: one watcher per server samples the scene
-(10 times a second), the run list and the eval and video jobs (once a second) in a worker thread while at least
-one stream is open, and wakes the streams when one changed, compared by content. Nothing is sampled while no
-stream is open. Each stream's own part (a rollout's new history rows, one run's new metrics rows and
-log lines) is read by the followers below, also in a worker thread.
+"""What `GET /api/stream` pushes, read off the event loop: one watcher per server samples a table of
+topics (the stream's: the scene 10 times a second, the run list once a second, the eval and video jobs
+when their queue says one changed: `wake`) in a worker thread while at least one stream is open, and
+wakes the streams when one changed, compared by content. Nothing is sampled while no stream is open.
+Each stream's own part (a rollout's new history rows, one run's new metrics rows and log lines) is read
+by the followers below, also in a worker thread.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import threading
 import uuid
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
@@ -19,11 +21,11 @@ from typing import Any
 
 import anyio.to_thread
 
-from studio.metrics import RowReader
+from studio.runs.metrics import RowReader
 
 LOG = logging.getLogger("studio")
-SCENE_PERIOD_S = 0.1
-RUNS_EVERY = 10  # scene periods: the run list is read once a second
+PERIOD_S = 0.1  # the watcher's tick: a topic is sampled every `Sampled.every` ticks
+ONCE_A_SECOND = 10
 ROLLOUT_BACKLOG_ROWS = 600  # 20 s at 30 Hz: what a new stream gets of the rollout's history (the plot shows 10 s)
 LOG_BACKLOG_LINES = 200
 LOG_TAIL_BYTES = 64 * 1024
@@ -47,23 +49,25 @@ class Versioned:
         return True
 
 
-class LiveState:
-    """The scene's snapshot, the run list and the eval jobs, sampled while someone listens (`subscribe`)."""
+@dataclass(frozen=True)
+class Sampled:
+    """How the watcher reads a topic's value: `read()` in a worker thread, every `every` ticks (None:
+    only when a stream starts the watcher and at the tick after each `LiveState.wake(topic)`)."""
 
-    def __init__(
-        self,
-        read_scene: Callable[[], dict[str, Any] | None],
-        read_runs: Callable[[], list[dict]],
-        read_evals: Callable[[], list[dict]] = list,
-        read_videos: Callable[[], list[dict]] = list,
-    ) -> None:
+    read: Callable[[], Any]
+    every: int | None = 1
+
+
+class LiveState:
+    """The values of `sampled` (topic name: how to read it), sampled while someone listens (`subscribe`);
+    `topics[name]` is a topic's value and version."""
+
+    def __init__(self, sampled: dict[str, Sampled]) -> None:
         self.server_id = uuid.uuid4().hex  # a new one per server start: the page sees a restart
-        self.scene = Versioned()
-        self.runs = Versioned()
-        self.evals = Versioned()
-        self.videos = Versioned()
-        self._read_scene, self._read_runs, self._read_evals = read_scene, read_runs, read_evals
-        self._read_videos = read_videos
+        self.topics = {name: Versioned() for name in sampled}
+        self._sampled = dict(sampled)
+        self._woken: set[str] = set()  # topics to read at the next tick, whatever their period
+        self._woken_lock = threading.Lock()  # `wake` comes from any thread
         self._listeners = 0
         self._task: asyncio.Task | None = None
         self._ready = asyncio.Event()
@@ -91,34 +95,41 @@ class LiveState:
                 self._task = None
 
     @property
-    def versions(self) -> tuple[int, int, int, int]:
-        """The scene's, the run list's, the eval jobs' and the video jobs' versions."""
-        return self.scene.version, self.runs.version, self.evals.version, self.videos.version
+    def versions(self) -> tuple[int, ...]:
+        """The topics' versions, in the order of `topics`."""
+        return tuple(v.version for v in self.topics.values())
 
     async def wait(self, seen: tuple[int, ...], timeout: float) -> None:
-        """Until the scene, the run list or the eval jobs are newer than `seen` (`versions`), or `timeout` seconds."""
+        """Until a topic is newer than `seen` (`versions`), or `timeout` seconds."""
         if self.versions != seen:
             return
         event = self._changed
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(event.wait(), timeout)
 
+    def wake(self, topic: str) -> None:
+        """Read `topic` at the next tick (within `PERIOD_S`): its source says it changed. Any thread."""
+        if topic not in self._sampled:
+            raise KeyError(f"no topic {topic!r}; known: {', '.join(self._sampled)}")
+        with self._woken_lock:
+            self._woken.add(topic)
+
     async def _watch(self, ready: asyncio.Event) -> None:
-        await self._sample(runs=True)
+        await self._sample(0)  # every topic
         ready.set()
         tick = 0
         while True:
-            await asyncio.sleep(SCENE_PERIOD_S)
+            await asyncio.sleep(PERIOD_S)
             tick += 1
-            await self._sample(runs=tick % RUNS_EVERY == 0)
+            await self._sample(tick)
 
-    async def _sample(self, *, runs: bool) -> None:
-        def read() -> tuple[bool, bool, bool, bool]:
-            scene_changed = self.scene.update(_guarded(self._read_scene, "the scene state", self.scene.value))
-            runs_changed = runs and self.runs.update(_guarded(self._read_runs, "the run list", self.runs.value))
-            evals_changed = runs and self.evals.update(_guarded(self._read_evals, "the eval jobs", self.evals.value))
-            videos = runs and self.videos.update(_guarded(self._read_videos, "the video jobs", self.videos.value))
-            return scene_changed, runs_changed, evals_changed, videos
+    async def _sample(self, tick: int) -> None:
+        with self._woken_lock:
+            woken, self._woken = self._woken, set()
+        due = [n for n, s in self._sampled.items() if tick == 0 or n in woken or (s.every and tick % s.every == 0)]
+
+        def read() -> list[bool]:
+            return [self.topics[n].update(_guarded(self._sampled[n].read, n, self.topics[n].value)) for n in due]
 
         if any(await anyio.to_thread.run_sync(read)):
             # Wake every waiting stream at once; later waiters get a fresh event.
@@ -126,34 +137,40 @@ class LiveState:
             self._changed = asyncio.Event()
 
 
-def _guarded(read: Callable[[], Any], what: str, last: Any) -> Any:
+def _guarded(read: Callable[[], Any], topic: str, last: Any) -> Any:
     """A failing read keeps the last value (and says so in the log): one bad sample must not end the
     watcher, which every open page depends on."""
     try:
         return read()
     except Exception as e:  # noqa: BLE001 - logged with its traceback; the stream goes on
-        LOG.warning("live state: reading %s failed", what, exc_info=e)
+        LOG.warning("live state: reading %s failed", topic, exc_info=e)
         return last
 
 
 class RolloutFollower:
-    """A rollout's history rows not sent yet; starts again (`reset`) when another rollout, a reloaded
-    checkpoint or a new episode numbering (step going back) appears."""
+    """A rollout's history rows not sent yet, read from what the scene thread published (`Playable.feed`:
+    no command to the scene thread); starts again (`reset`) when another rollout, a reloaded checkpoint or
+    a new episode numbering (step going back) appears."""
 
     def __init__(self) -> None:
         self._shown: tuple[int, Any, Any] | None = None
+        self._seen: int | None = None  # the version of the feed read last
         self._last_step = -1
 
     def read(self, rollout_player: Any) -> dict[str, Any] | None:
         if rollout_player is None:
-            self._shown = None
+            self._shown = self._seen = None
             return None
-        snap = rollout_player.snapshot()["rollout"]
+        feed = rollout_player.feed()
+        if feed is None or feed.version == self._seen:
+            return None
+        self._seen = feed.version
+        snap = feed.state["rollout"]
         key = (id(rollout_player), snap.get("checkpoint"), snap.get("reloads"))
         reset = key != self._shown or snap["step"] < self._last_step
         if reset:
             self._shown, self._last_step = key, -1
-        rows = rollout_player.history_rows(self._last_step, ROLLOUT_BACKLOG_ROWS)
+        rows = [r for r in feed.rows if r["step"] > self._last_step][-ROLLOUT_BACKLOG_ROWS:]
         if not rows and not reset:
             return None
         if rows:

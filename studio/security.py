@@ -19,13 +19,27 @@ from urllib.parse import parse_qsl, urlsplit
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+MAX_PATH_CHARS = 4096  # Linux's PATH_MAX: no longer path names a file
+MAX_NAME_CHARS = 255  # NAME_MAX of the usual file systems: no longer name is a file or folder
+SHOWN_CHARS = 100  # of a path quoted in an error
+MAX_MESSAGE_CHARS = 400  # of a PathError's message, whatever its raiser quoted
+
 
 class PathError(Exception):
-    """A request named a file outside the allowed folders (403) or one that is missing (404)."""
+    """A request named a file outside the allowed folders (403), one that is missing (404) or a path
+    no file can have (400). The message is one line of at most `MAX_MESSAGE_CHARS` characters."""
 
     def __init__(self, message: str, status: int) -> None:
+        message = message.replace("\r", "\\r").replace("\n", "\\n")
+        if len(message) > MAX_MESSAGE_CHARS:
+            message = message[: MAX_MESSAGE_CHARS - 1] + "…"
         super().__init__(message)
         self.status = status
+
+
+def shown_path(path: str) -> str:
+    """`path` as an error quotes it: at most `SHOWN_CHARS` characters, and its length when cut."""
+    return path if len(path) <= SHOWN_CHARS else f"{path[:SHOWN_CHARS]}... ({len(path):,} chars)"
 
 
 def confine(path: str, roots: Iterable[Path], *, must_exist: bool = True) -> Path:
@@ -34,27 +48,42 @@ def confine(path: str, roots: Iterable[Path], *, must_exist: bool = True) -> Pat
     if not path or "\x00" in path:
         raise PathError("empty or invalid path", 400)
     p = PurePosixPath(path.replace("\\", "/"))
+    if len(path) > MAX_PATH_CHARS or any(len(part) > MAX_NAME_CHARS for part in p.parts):
+        limits = f"at most {MAX_PATH_CHARS:,} characters, {MAX_NAME_CHARS} per name"
+        raise PathError(f"path too long ({limits}): {shown_path(path)}", 400)
     if ".." in p.parts:
-        raise PathError(f"'..' is not allowed in paths: {path}", 403)
+        raise PathError(f"'..' is not allowed in paths: {shown_path(path)}", 403)
     if p.is_absolute():
         candidates = [Path(p)]
     else:
         rest = PurePosixPath(*p.parts[1:]) if p.parts[0] == "data" and len(p.parts) > 1 else p
         candidates = [root / rest for root in roots] + [root / p for root in roots]
+    try:
+        found, inside = _lookup(candidates, roots)
+    except OSError as e:  # ENAMETOOLONG once joined to a root, ELOOP, EACCES: no file it can name
+        raise PathError(f"not a usable path ({e.strerror or type(e).__name__}): {shown_path(path)}", 400) from None
+    if found is not None:
+        return found
+    if not inside:
+        raise PathError(f"path is outside the data and runs folders: {shown_path(path)}", 403)
+    if must_exist:
+        raise PathError(f"not found: {shown_path(path)}", 404)
+    return inside[0]
+
+
+def _lookup(candidates: list[Path], roots: list[Path]) -> tuple[Path | None, list[Path]]:
+    """The first candidate that resolves to an existing file inside `roots`, else None and those that
+    resolve inside without existing (none when one leads out through a symlink)."""
     inside, escapes = [], False
     for c in candidates:
         r = c.resolve()
         if _inside(r, roots):
             if r.exists():
-                return r
+                return r, []
             inside.append(r)
         elif c.is_symlink() or c.exists():
             escapes = True  # the name is inside, but a symlink on the way leads out
-    if escapes or not inside:
-        raise PathError(f"path is outside the data and runs folders: {path}", 403)
-    if must_exist:
-        raise PathError(f"not found: {path}", 404)
-    return inside[0]
+    return None, [] if escapes else inside
 
 
 def _inside(p: Path, roots: list[Path]) -> bool:

@@ -37,6 +37,16 @@ class Settings:
     upload_limit_bytes: int = 64 * 1024 * 1024
     stop_timeout_s: float = 60.0
     """How long a stopped run may take to write its checkpoint before it is killed."""
+    max_queued_runs: int = 1000
+    """Training runs that may wait in the queue at once; a launch or sweep past it is refused (429)."""
+    max_queued_jobs: int = 20
+    """Eval jobs, and video jobs, that may wait in their queue at once; one more is refused (429)."""
+    eval_time_limit_s: float = 3600.0
+    """An eval job running longer than this is killed and fails."""
+    video_time_limit_s: float = 600.0
+    """A video job running longer than this is killed and fails."""
+    replay_quota_bytes: int = 1024**3
+    """What `<runs-dir>/replays/` may hold; an export past it is refused until old replays are deleted."""
     start_viser: bool = True
     startup_clip: Path | None = DEMO_CLIP
     startup_char: Path | None = DEMO_CHAR

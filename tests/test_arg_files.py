@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from mimickit.envs.env_config import load_env_configs
-from mimickit.learning.agent_config import load_agent_config
-from mimickit.run_args import RUN_ARGS, check_run_args
+from mimickit.envs.env_builder import load_env_configs
+from mimickit.learning.agent_builder import load_agent_config
+from mimickit.runner.args import RUN_ARGS, check_run_args
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.paths import PROJECT_DATA, PROJECT_ROOT
 

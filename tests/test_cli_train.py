@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from mimickit.envs.base_env import DoneFlags
-from mimickit.run_folder import RunFolder
+from mimickit.learning.run_folder import RunFolder
 from mimickit.util.paths import PROJECT_ROOT
 
 pytestmark = pytest.mark.integration
@@ -35,6 +35,11 @@ def train_args(out_dir: Path, *extra: str) -> list[str]:
 
 def metrics(out_dir: Path) -> list[dict]:
     return [json.loads(line) for line in (out_dir / "metrics.jsonl").read_text().splitlines()]
+
+
+def finished_rows(out_dir: Path) -> int:
+    """The whole lines of metrics.jsonl (a line being written has no newline yet)."""
+    return (out_dir / "metrics.jsonl").read_text().count("\n")
 
 
 def test_train_writes_outputs_then_test_and_resume_in_fresh_processes(tmp_path: Path) -> None:
@@ -85,12 +90,17 @@ def test_sigterm_mid_run_saves_a_loadable_checkpoint_and_exits_zero(tmp_path: Pa
         while not ((out / "metrics.jsonl").is_file() and metrics(out)) and time.monotonic() < deadline:
             assert proc.poll() is None, proc.stderr.read()[-3000:]
             time.sleep(0.2)
+        # Frozen while its rows are counted and the signal is queued, so the count is what it had
+        # finished when the signal came (a running child could finish more between the read and the send).
+        proc.send_signal(signal.SIGSTOP)
+        rows = finished_rows(out)
         proc.send_signal(signal.SIGTERM)
-        sent = time.monotonic()
-        assert proc.wait(60) == 0, proc.stderr.read()[-3000:]
-        assert time.monotonic() - sent < 30
+        proc.send_signal(signal.SIGCONT)
+        assert proc.wait(120) == 0, proc.stderr.read()[-3000:]  # a timeout for a hung run only
     finally:
         proc.kill()
+    # It stops within the iteration the signal came in (a partial rollout is discarded): at most one more row.
+    assert rows <= finished_rows(out) <= rows + 1
     state = torch.load(out / "model.pt", weights_only=True)
     assert state["_train_state"]["samples"] >= 128
     end = RunFolder(out).read_state()
@@ -214,7 +224,7 @@ def root_travel_speed(name: str, data_dir: Path, num_envs: int = 4, steps: int =
     test mode; fewer steps than an episode, so only a fall ends one); and how many envs fell. AMP has no
     clip to track: this is what says the policy walks, rather than stands or turns on the spot."""
     from mimickit.learning.base_agent import AgentMode
-    from mimickit.policy import load_policy, policy_inputs
+    from mimickit.runner.policy import load_policy, policy_inputs
     from mimickit.util.paths import DataPaths
 
     inputs = policy_inputs(PROJECT_ROOT / f"data/models/{name}.txt", DataPaths(data_dir))

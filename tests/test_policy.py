@@ -8,7 +8,7 @@ from pathlib import Path
 import mujoco  # noqa: F401  (imported at collection: its GLFW probe starts a process, allowed only then)
 import pytest
 
-from mimickit.policy import load_policy, policy_inputs
+from mimickit.runner.policy import load_policy, policy_inputs
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
 from tests.conftest import DEMO_CLIP, write_shifted_demo_clip

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import torch
 
-from mimickit.envs.env_config import load_env_configs
-from mimickit.run_folder import ExitCode, RunFolder
+from mimickit.envs.env_builder import load_env_configs
+from mimickit.learning.run_folder import ExitCode, RunFolder
 from mimickit.tools.plot_log import read_events, read_log
 from mimickit.util.paths import PROJECT_ROOT
 from tests.conftest import DEMO_CLIP, write_shifted_demo_clip

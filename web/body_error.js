@@ -1,16 +1,8 @@
 // The rollout panel's per-body tracking error: one bar per body of the character (model order), for the
-// frame the scene shows (the live end or a history frame), with a legend. The colour scale is the scene's:
-// its stops and scale (metres) come with the state (`rollout.body_error`), the formula is studio/scene.py's
-// error_colour, so a bar has the colour of its body in the 3D view.
+// frame the scene shows (the live end or a history frame), with a legend. Each bar's colour comes with the
+// state (`rollout.body_error.colours`, studio/scene/view.py's error_colour), so a bar has the colour of its
+// body in the 3D view; the legend draws the same stops over the same scale.
 import { el } from "./api.js";
-
-export function errorColour(e, scale, stops) {
-  const t = Math.min(Math.max(e / scale, 0), 1) * (stops.length - 1);
-  const i = Math.min(Math.floor(t), stops.length - 2);
-  const f = t - i;
-  // Math.round: halves up, as error_colour rounds them.
-  return stops[i].map((a, k) => Math.round(a + (stops[i + 1][k] - a) * f));
-}
 
 const rgb = (c) => `rgb(${c[0]}, ${c[1]}, ${c[2]})`;
 const short = (name) => name.replace(/^left_/, "L ").replace(/^right_/, "R ").replace(/_/g, " ");
@@ -59,7 +51,7 @@ export class BodyErrorChart {
     this.legend.textContent = ` · mean ${err.mean_m.toFixed(3)}`;
     err.errors_m.forEach((e, i) => {
       const { col, fill, name } = this.bars[i];
-      const c = errorColour(e, err.scale_m, err.stops);
+      const c = err.colours[i];
       fill.style.height = `${(100 * Math.min(e / err.scale_m, 1)).toFixed(1)}%`;
       fill.style.background = rgb(c);
       col.dataset.error = String(e);

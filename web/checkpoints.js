@@ -2,12 +2,15 @@
 import { $, api, el } from "./api.js";
 import { loadRollout } from "./player.js";
 
+// A model trained on a clip the data folders lack (MimicKit's clips are not shipped) says so in the list.
+export const needsData = (c) => c.needs_data ? ` · needs ${c.needs_data.split("/").pop()}: start the studio with --data-dir` : "";
+
 export async function refreshCheckpoints() {
   let list;
   try { list = await api("GET", "/api/checkpoints"); } catch (e) { return; }
   const sel = $("checkpoint"), keep = sel.value;
   const opts = list.map((c) => el("option", { value: c.path, title: c.path },
-    `${c.run_id !== null ? `#${c.run_id} ${c.run_name} · ` : ""}${c.path.split("/").slice(-2).join("/")} · ${new Date(c.mtime * 1000).toLocaleTimeString()}`));
+    `${c.run_id !== null ? `#${c.run_id} ${c.run_name} · ` : ""}${c.path.split("/").slice(-2).join("/")} · ${new Date(c.mtime * 1000).toLocaleTimeString()}${needsData(c)}`));
   sel.replaceChildren(...(opts.length ? opts : [el("option", { value: "" }, "(no checkpoints yet)")]));
   if (keep && list.some((c) => c.path === keep)) sel.value = keep;
   const b = $("checkpoint-b"), keepB = b.value;  // A/B: the same list, B's pick

@@ -3,7 +3,7 @@
 // the configs as trained, the launch form's values) on which they differ.
 import { $, api, el } from "./api.js";
 import { CurvePlot, PALETTE } from "./plots.js";
-import { X_LABELS, fillPlots, groupOf, markDivergence, onViewChange, view } from "./curves.js";
+import { GROUPS, X_LABELS, fillPlots, groupOf, markDivergence, onViewChange, view } from "./curves.js";
 
 let shown = false;
 let data = null; // {runs: [{id, name, status, diverged, rows}], diff}
@@ -36,7 +36,7 @@ export async function showCompare(on) {
   $("compare-diff").textContent = "reading the runs…";
   try {
     const [info, ...rows] = await Promise.all([api("GET", `/api/compare?runs=${ids.join(",")}`),
-      ...ids.map((i) => api("GET", `/api/runs/${i}/metrics?follow=false`))]);
+      ...ids.map((i) => api("GET", `/api/runs/${i}/metrics`))]);
     data = { runs: info.runs.map((r, i) => ({ ...r, rows: rows[i] })), diff: info.diff };
   } catch (e) {
     $("compare-diff").textContent = `cannot compare: ${e.message}`;
@@ -70,7 +70,7 @@ function render() {
 }
 
 const label = (r) => `#${r.id} ${r.name}`;
-const rank = (k) => ["returns", "lengths", "falls", "rewards", "losses"].indexOf(groupOf(k));
+const rank = (k) => GROUPS.indexOf(groupOf(k));
 
 function renderDiff() {
   const box = $("compare-diff");

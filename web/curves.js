@@ -5,17 +5,21 @@ import { CurvePlot } from "./plots.js";
 
 export const X_LABELS = { samples: "samples", wall_time: "wall time (h)", iteration: "iteration" };
 const GROUP_LABELS = {
-  returns: "return", lengths: "episode length", falls: "falls and tracking error", rewards: "reward terms", losses: "losses",
+  returns: "return", lengths: "episode length", falls: "share of test episodes that fell",
+  pos_err: "position error (m, the paper's)", vel_err: "DoF velocity error (rad/s, the paper's)",
+  rewards: "reward terms", losses: "losses",
 };
+export const GROUPS = Object.keys(GROUP_LABELS);  // the plots' order
 export const view = { x: "samples", smoothing: 0 };
 const changeListeners = [];
 export const onViewChange = (fn) => changeListeners.push(fn);
 
-// Which plot a metrics column belongs on (null: not drawn). "falls": the share of test episodes that
-// ended in a fall (0–1) beside the paper's tracking errors (metres, rad/s), the figures imitation is
-// judged by (the reference code's own tracking columns stay in metrics.jsonl).
+// Which plot a metrics column belongs on (null: not drawn), one unit per plot: "falls" the share of test
+// episodes that ended in a fall (0–1), then the paper's tracking errors, the figures imitation is judged
+// by, in metres and in rad/s (the reference code's own tracking columns stay in metrics.jsonl).
 export const groupOf = (k) => (k === "train_return" || k === "test_return" ? "returns"
-  : k.endsWith("episode_length") ? "lengths" : k === "test_fail_frac" || k.startsWith("tracking.paper_") ? "falls"
+  : k.endsWith("episode_length") ? "lengths" : k === "test_fail_frac" ? "falls"
+  : k === "tracking.paper_pos_err_m" ? "pos_err" : k === "tracking.paper_dof_vel_err" ? "vel_err"
   : k.startsWith("reward_terms.") ? "rewards" : k.includes("loss") ? "losses" : null);
 
 export const xOf = (row) => row[view.x] ?? row.samples ?? row.iteration ?? 0;

@@ -2,6 +2,7 @@
 // as a background job. The job list is pushed by the stream (`evals` events) and updated in place; a
 // finished job shows its table, and a click on a row rolls that clip out in the scene.
 import { $, api, el } from "./api.js";
+import { needsData } from "./checkpoints.js";
 import { applyState } from "./player.js";
 
 const ACTIVE = ["queued", "running"];
@@ -28,9 +29,11 @@ async function refreshEvalCheckpoints() {
   try { list = await api("GET", "/api/checkpoints"); } catch (e) { return; }
   const sel = $("eval-checkpoint"), keep = sel.value;
   const opts = list.map((c) => el("option", { value: c.path, title: c.path, "data-run": c.run_id ?? "" },
-    `${c.run_id !== null ? `#${c.run_id} ${c.run_name} · ` : ""}${short(c.path, 2)}${c.has_configs ? "" : " (no configs beside: pick an arg file)"}`));
+    `${c.run_id !== null ? `#${c.run_id} ${c.run_name} · ` : ""}${short(c.path, 2)}${c.has_configs ? "" : " (no configs beside: pick an arg file)"}${needsData(c)}`));
   sel.replaceChildren(...(opts.length ? opts : [el("option", { value: "" }, "(no checkpoints yet)")]));
+  const playable = list.find((c) => !c.needs_data);  // the first pick is one that evaluates here
   if (keep && list.some((c) => c.path === keep)) sel.value = keep;
+  else if (playable) sel.value = playable.path;
   $("eval-button").disabled = !list.length;
 }
 
@@ -51,7 +54,7 @@ export async function startEval(body) {
   $("eval-error").textContent = "";
   try {
     await api("POST", "/api/evals", body);
-    renderEvals(await api("GET", "/api/evals"));  // at once; the stream would bring it within a second
+    await refreshEvals();
   } catch (e) {
     $("eval-error").textContent = e.message;
   }
@@ -76,7 +79,24 @@ export function initEvals() {
 // The job list, pushed by the stream when a job's status or rows changed: each job keeps its element,
 // updated in place (a focused button keeps its focus); its table is built once, when it has finished.
 const jobNodes = new Map();  // job id -> {node, job, key, fields}
+let pushes = 0;  // how many job lists the stream has pushed
+
+// The stream's `evals` event: the job list now.
 export function renderEvals(jobs) {
+  pushes += 1;
+  drawEvals(jobs);
+}
+
+// The job list fetched at once after an action (the stream would bring it within a second). An answer
+// that arrives after a push is older than it and is dropped: applied, it would put a finished job back
+// to running, and no push would come to correct it.
+async function refreshEvals() {
+  const before = pushes;
+  const jobs = await api("GET", "/api/evals");
+  if (pushes === before) drawEvals(jobs);
+}
+
+function drawEvals(jobs) {
   const list = $("eval-list");
   const byId = new Map(jobs.map((j) => [j.id, j]));
   const nodes = [...byId.values()].sort((a, b) => b.id - a.id).map((job) => jobNode(job));
@@ -158,7 +178,7 @@ async function jobAction(job, method, action) {
   if (method === "DELETE" && !confirm(`Delete eval #${job.id} and its folder ${job.folder}?`)) return;
   try {
     await api(method, `/api/evals/${job.id}${action ? `/${action}` : ""}`, method === "POST" ? {} : undefined);
-    renderEvals(await api("GET", "/api/evals"));  // at once; the stream would bring it within a second
+    await refreshEvals();
   } catch (e) {
     $("eval-error").textContent = e.message;
   }

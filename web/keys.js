@@ -1,14 +1,32 @@
 // The page's keys. They act wherever the focus is (a button, a checkbox, the timeline after a drag),
 // except in a text field or a list box, where keys belong to what is typed or picked. Inside the 3D
-// view the scene's own commands (studio/player_gui.py) handle Enter and Space.
+// view the scene's own commands (studio/scene/player_gui.py) handle Enter and Space.
 import { $, el } from "./api.js";
 import { playerCommand, sceneState } from "./player.js";
 
 const TYPING = "input[type=text], input[type=search], input[type=number], input:not([type]), textarea, select, [contenteditable]";
 
-const seekBy = (d) => {
+// The frame →/← last asked for while a seek is on its way: quick presses count from it, not from the frame
+// the page last heard of (10 fast presses moved one frame), and one seek at a time goes out, so the
+// server sees them in order and the newest target last.
+let seekTarget = null;
+let seeking = false;
+const seekBy = async (d) => {
   const s = sceneState();
-  if (s && s.num_frames) playerCommand("seek", { frame: Math.min(Math.max(0, s.frame + d), s.num_frames - 1) });
+  if (!s || !s.num_frames) return;
+  seekTarget = Math.min(Math.max(0, (seekTarget ?? s.frame) + d), s.num_frames - 1);
+  $("timeline").value = seekTarget;  // shown at once; the server's answer reconciles it
+  if (seeking) return;
+  seeking = true;
+  try {
+    for (let sent = null; sent !== seekTarget;) {
+      sent = seekTarget;
+      await playerCommand("seek", { frame: sent });
+    }
+  } finally {
+    seeking = false;
+    seekTarget = null;
+  }
 };
 const toggle = (id) => { const c = $(id); c.checked = !c.checked; c.dispatchEvent(new Event("change")); };
 

@@ -32,13 +32,30 @@ function showScene() {
   $("scene").src = sceneLoads === 1 ? url : `${url}${url.includes("?") ? "&" : "?"}reload=${sceneLoads}`;
 }
 
-// viser's control panel is minimised (studio/player_gui.py), but under viser's mobile breakpoint (36em
+// viser's control panel is minimised (studio/scene/player_gui.py), but under viser's mobile breakpoint (36em
 // of the iframe's width) it becomes a bottom sheet that opens expanded over the middle of the 3D view,
-// and viser has no setting for that sheet: the page hides it (the scene's iframe is same-origin).
+// and viser has no setting for that sheet (1.1.1: its BottomPanel always starts expanded; neither
+// configure_theme nor main_panel.minimize() reaches it, and the page's own CSS cannot reach into the
+// iframe): the page hides it (the scene's iframe is same-origin). Without this the narrow-screen browser
+// test finds the sheet, not the canvas, at the centre of the 3D view.
 const SCENE_NARROW_CSS = "@media (max-width: 36em) { .mantine-Paper-root[style*='position: fixed'][style*='bottom: 0'] { display: none !important; } }";
 $("scene").addEventListener("load", () => {
   const doc = $("scene").contentDocument;
   if (doc && doc.head) doc.head.append(Object.assign(doc.createElement("style"), { textContent: SCENE_NARROW_CSS }));
+  if (doc) followStudioFocus($("scene").contentWindow);
+});
+
+// viser's client (1.1.1, WebsocketInterface.tsx) retries a lost or failed websocket only while its own
+// document has the focus, which the embedded scene rarely has: the studio's page has it. A scene whose
+// connection failed once stayed grey for good (a CI failure: no frame for 60 s after a restart). Its
+// document follows the studio page's focus instead, and a focus of the page is passed on to it.
+function followStudioFocus(win) {
+  win.document.hasFocus = () => document.hasFocus();
+  win.dispatchEvent(new Event("focus"));
+}
+window.addEventListener("focus", () => {
+  const win = $("scene").contentWindow;
+  if (win) win.dispatchEvent(new Event("focus"));
 });
 
 let serverId = null;

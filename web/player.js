@@ -74,18 +74,20 @@ export async function loadRollout(body) {
   }
 }
 
-// One side's label: who, when its checkpoint was saved, the episode shown and its reward terms.
+// One side's label: who, the training its weights have seen, when its checkpoint was saved, the episode
+// shown and its reward terms.
 function sideLabel(r, side) {
   const who = r.run_id !== null ? `run #${r.run_id} ${r.run_name || ""}` : r.checkpoint.split("/").slice(-2).join("/");
   const saved = new Date(r.checkpoint_mtime * 1000).toLocaleTimeString();
+  const trained = r.samples ? `iteration ${r.iteration}, ${(r.samples / 1e6).toFixed(2)} M samples` : "no training record";
   const terms = Object.entries(r.reward_terms).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(" · ");
-  return `${side ? `${side}: ` : ""}${who} · checkpoint saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
+  return `${side ? `${side}: ` : ""}${who} · ${trained} · file saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
     ` · episode ${r.episode} · return ${r.episode_return.toFixed(2)}${r.waiting ? " · ended, waiting for the other" : ""}` +
     `${terms ? ` · ${terms}` : ""}${r.error ? ` · ${r.error}` : ""}`;
 }
 
 const plotOptions = (title) => ({
-  title, xLabel: "time (s)", yLabel: "reward", height: 130, window: 10, yRange: [0, 1], colors: { reward: "#ffffff" },
+  title, xLabel: "time (s)", yLabel: "reward", height: 130, window: 10, keep: 60, yRange: [0, 1], colors: { reward: "#ffffff" },
   gaps: true,  // an A/B side holding its pose has no reward: a gap, not a line across
 });
 
@@ -109,6 +111,7 @@ export const rolloutView = {
     $("clip-label").textContent = b
       ? `A/B: ${r.checkpoint.split("/").slice(-2).join("/")} (front) and ${b.checkpoint.split("/").slice(-2).join("/")} (behind), each episode from the same clip start`
       : `rollout of ${r.checkpoint.split("/").slice(-2).join("/")} in ${r.env_config.split("/").pop()} (ghost: the reference clip)`;
+    if (r.real_time_factor !== null) $("clip-label").textContent += ` · ${r.real_time_factor.toFixed(2)}× real time`;
     this.plot.setTitle(b ? "A: reward and its terms, last 10 s" : "rollout: reward and its terms, last 10 s");
     this.bodyError.apply(r.body_error);  // the frame shown's (live or history)
     if (b) $("rollout-label-b").textContent = sideLabel(b, "B");

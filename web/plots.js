@@ -9,7 +9,9 @@ const AXIS = { stroke: "#8a91a0", grid: { stroke: "#2a2e37", width: 1 }, ticks: 
 const MARKER_COLORS = { resume: "#8fa8ff", diverged: "#ff4d4d" };
 
 export class CurvePlot {
-  // options: title, xLabel, yLabel, height, window (keep the last `window` x units), yRange ([lo, hi]),
+  // options: title, xLabel, yLabel, height, window (show the last `window` x units, or those around the
+  // cursor when it is further back), keep (x units kept for that, default `window`), yRange ([lo, hi]: the
+  // least y range shown, widened to take in every value: an AMP rollout's style reward is above 1),
   // colors ({name: color}), gaps (true: lines break at `addGap` points instead of spanning missing values);
   // `cursor` (an x value, or null) draws a dashed line there.
   constructor(container, options = {}) {
@@ -39,7 +41,7 @@ export class CurvePlot {
   addGap(x) {
     if (!Number.isFinite(x)) return;
     this.gaps.push(x);
-    const w = this.options.window;
+    const w = this._kept();
     if (w && this.gaps[0] < x - w * 1.5) this.gaps = this.gaps.filter((g) => g >= x - w);
   }
 
@@ -49,12 +51,16 @@ export class CurvePlot {
     const s = this.series.get(name);
     s.xs.push(x);
     s.ys.push(y);
-    const w = this.options.window;
+    const w = this._kept();
     if (w && s.xs[0] < x - w * 1.5) {  // trim now and then, not on every point
       const keep = s.xs.findIndex((px) => px >= x - w);
       s.xs.splice(0, keep);
       s.ys.splice(0, keep);
     }
+  }
+
+  _kept() {
+    return this.options.keep ?? this.options.window;
   }
 
   addMarker(x, label, kind = "resume") {
@@ -104,7 +110,11 @@ export class CurvePlot {
     for (const g of this.gaps) xs.add(g);
     let x = [...xs].sort((a, b) => a - b);
     const w = this.options.window;
-    if (w && x.length) x = x.filter((v) => v >= x[x.length - 1] - w);
+    if (w && x.length) {  // the last `w` units, or `w` around a cursor further back (a rollout scrubbed back)
+      const last = x[x.length - 1], c = this.cursor;
+      const end = c !== null && c < last - w ? Math.min(last, c + w / 2) : last;
+      x = x.filter((v) => v >= end - w && v <= end);
+    }
     const index = new Map(x.map((v, i) => [v, i]));
     const data = [x];
     for (const n of names) {
@@ -126,7 +136,7 @@ export class CurvePlot {
       title: o.title,
       scales: {
         x: { time: false },
-        y: yRange ? { range: () => yRange } : { range: (u, lo, hi) => padRange(lo, hi) },
+        y: { range: (u, lo, hi) => (yRange ? coverRange(yRange, lo, hi) : padRange(lo, hi)) },
       },
       axes: [{ ...AXIS, label: o.xLabel, size: 34, labelSize: 14, values: (u, v) => v.map(fmt) },
              { ...AXIS, label: o.yLabel, size: 48, labelSize: 14, values: (u, v) => v.map(fmt) }],
@@ -137,7 +147,7 @@ export class CurvePlot {
         }))],
       legend: { show: true, live: true },
       cursor: { drag: { x: false, y: false } },
-      hooks: { draw: [(u) => this._overlay(u)] },
+      hooks: { draw: [(u) => this._drawn(u)] },
     };
     this.uplot = new uPlot(opts, [[], ...names.map(() => [])], this.box);
   }
@@ -146,6 +156,13 @@ export class CurvePlot {
     if (this.uplot && this.box.clientWidth > 0 && Math.abs(this.uplot.width - this.box.clientWidth) > 1) {
       this.uplot.setSize({ width: this.box.clientWidth, height: this.options.height });
     }
+  }
+
+  _drawn(u) {
+    this._overlay(u);
+    const d = this.box.dataset;  // the axes' ranges drawn, for a reader of the page (and its tests)
+    d.xRange = `${u.scales.x.min},${u.scales.x.max}`;
+    d.yRange = `${u.scales.y.min},${u.scales.y.max}`;
   }
 
   // Markers, non-finite ticks and the cursor line, drawn over the curves.
@@ -177,6 +194,11 @@ export function smooth(ys, weight) {
   if (!weight) return ys;
   let last = 0, n = 0;
   return ys.map((y) => { last = last * weight + (1 - weight) * y; n += 1; return last / (1 - weight ** n); });
+}
+
+function coverRange([least, most], lo, hi) {
+  if (lo === null || hi === null || (lo >= least && hi <= most)) return [least, most];
+  return padRange(Math.min(lo, least), Math.max(hi, most));
 }
 
 function padRange(lo, hi) {

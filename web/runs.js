@@ -11,35 +11,99 @@ let stream = null;
 let selectedRun = null;
 export const selectedRunId = () => selectedRun;
 
+// The launch form's inputs come from GET /api/runs/fields (studio/runs/launch_fields.py, the one table of
+// a launch's fields): each field's input with its help as its tooltip, fields of one row side by side; the
+// submit reads them back by the same table. Fetched once (again after a failure, when the library reloads).
+let launchFields = [];
+let fieldsReady = null;
+function launchFieldsReady() {
+  if (!fieldsReady) {
+    fieldsReady = api("GET", "/api/runs/fields").then(buildLaunchFields)
+      .catch((e) => { fieldsReady = null; throw e; });
+  }
+  return fieldsReady;
+}
+
+function buildLaunchFields(fields) {
+  const box = $("launch-fields"), rows = new Map();
+  box.replaceChildren();
+  for (const f of fields) {
+    const label = el("label", {}, `${f.widget.label} `, fieldInput(f));
+    const row = f.widget.row;
+    if (row && !rows.has(row)) box.append(rows.set(row, el("div", { class: "row" })).get(row));
+    (row ? rows.get(row) : box).append(label);
+  }
+  launchFields = fields;
+}
+
+function fieldInput(f) {
+  const w = f.widget, attrs = { id: w.id, title: f.help };
+  if (f.required) attrs.required = "";
+  if (w.kind === "select") return el("select", attrs, ...(f.required ? [] : [el("option", { value: "" }, w.placeholder)]));
+  Object.assign(attrs, { type: w.kind, placeholder: w.placeholder });
+  if (w.kind === "number") Object.assign(attrs, f.min === null ? {} : { min: f.min }, { step: w.step });
+  return el("input", attrs);
+}
+
+// The body of POST /api/runs: each field that has a value (a required one always), a number as a number.
+function launchBody() {
+  const body = {};
+  for (const f of launchFields) {
+    const value = $(f.widget.id).value;
+    if (value !== "" || f.required) body[f.name] = f.type === "string" ? value : Number(value);
+  }
+  return body;
+}
+
 const DEFAULT_ARG_FILE = "deepmimic_humanoid_demo_ppo_args";  // trains on the project's own clip: no MimicKit data needed
-export function fillLaunchForm(library) {
+export async function fillLaunchForm(library) {
+  try { await launchFieldsReady(); } catch (e) {
+    $("launch-error").textContent = `cannot read the launch form's fields: ${e.message}`;
+    return;
+  }
   const argSel = $("arg-file"), keep = argSel.value;
   argSel.replaceChildren(...library.configs.arg_files.map((a) => el("option", { value: a.path, title: a.path }, a.name)));
   const demo = library.configs.arg_files.find((a) => a.name === DEFAULT_ARG_FILE);
   if (keep) argSel.value = keep;
   else if (demo) argSel.value = demo.path;
-  const motionSel = $("motion-file"), keepMotion = motionSel.value;
-  motionSel.replaceChildren(el("option", { value: "" }, "(from the arg file)"),
-    ...library.configs.datasets.map((d) => el("option", { value: d.path }, `dataset: ${d.name}`)),
-    ...library.clips.filter((m) => !m.error).map((m) => el("option", { value: m.path }, m.path)));
-  motionSel.value = keepMotion;
+  argSel.onchange = clipsForArgFile;  // the select is built from the fields' table: set here, once per form
+  shownLibrary = library;
+  fillClips(library, null);
+  clipsForArgFile();
   $("launch-button").disabled = library.configs.arg_files.length === 0;
   if (!library.configs.arg_files.length) $("launch-error").textContent = "no arg files found (args/*.txt)";
 }
 
+// The clip choices are the clips the arg file's character can play (values per frame: its DoF count; every
+// clip until that is known). Datasets stay: their clips are checked when the run starts.
+let shownLibrary = null;
+function fillClips(library, frameDim) {
+  const sel = $("motion-file"), keep = sel.value;
+  const clips = library.clips.filter((m) => !m.error && (frameDim === null || m.frame_dim === frameDim));
+  sel.replaceChildren(sel.options[0],
+    ...library.configs.datasets.map((d) => el("option", { value: d.path }, `dataset: ${d.name}`)),
+    ...clips.map((m) => el("option", { value: m.path }, m.path)));
+  sel.value = [...sel.options].some((o) => o.value === keep) ? keep : "";
+  sel.dataset.frameDim = frameDim ?? "";
+}
+
+async function clipsForArgFile() {
+  const library = shownLibrary, path = $("arg-file").value;
+  if (!library || !path) return;
+  let frameDim = null;
+  try {
+    const char = (await api("GET", `/api/configs/file?path=${encodeURIComponent(path)}`)).trains?.char_file?.resolved;
+    frameDim = library.characters.find((c) => c.path === char)?.frame_dim ?? null;
+  } catch (e) { /* an arg file that does not read: every clip is offered; the launch says what is wrong */ }
+  if (path === $("arg-file").value) fillClips(library, frameDim);  // not if another was picked meanwhile
+}
+
 export function initRuns(theStream) {
   stream = theStream;
+  launchFieldsReady().catch(() => {});  // fillLaunchForm says when it failed
   $("launch").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    const body = { arg_file: $("arg-file").value };
-    if ($("run-name").value) body.name = $("run-name").value;
-    if ($("num-envs").value) body.num_envs = Number($("num-envs").value);
-    if ($("max-samples").value) body.max_samples = Number($("max-samples").value);
-    if ($("max-hours").value) body.max_hours = Number($("max-hours").value);
-    if ($("motion-file").value) body.motion_file = $("motion-file").value;
-    if ($("rand-seed").value !== "") body.rand_seed = Number($("rand-seed").value);
-    if ($("num-cpus").value !== "") body.num_cpus = Number($("num-cpus").value);
-    if ($("num-gpus").value !== "") body.num_gpus = Number($("num-gpus").value);
+    const body = launchBody();
     try {
       const values = sweepValues($("sweep-values").value);
       if ($("sweep-dataset").checked) {
@@ -62,6 +126,7 @@ export function initRuns(theStream) {
 }
 
 // "rand_seed=0,1,2" a line -> {rand_seed: [0, 1, 2]}; numbers stay numbers, the server checks keys and values.
+// "devices=cpu cpu" -> {devices: [["cpu", "cpu"]]}: one value of several devices, each its own argument.
 export function sweepValues(text) {
   const values = {};
   text.split("\n").map((l) => l.trim()).filter(Boolean).forEach((line, i) => {
@@ -69,7 +134,7 @@ export function sweepValues(text) {
     if (eq < 1) throw new Error(`sweep, line ${i + 1}: write key=value1,value2 (got "${line}")`);
     const key = line.slice(0, eq).trim().replace(/^--/, "");
     values[key] = line.slice(eq + 1).split(",").map((v) => v.trim()).filter((v) => v !== "")
-      .map((v) => (Number.isFinite(Number(v)) ? Number(v) : v));
+      .map((v) => (key === "devices" ? v.split(/\s+/) : Number.isFinite(Number(v)) ? Number(v) : v));
   });
   return values;
 }
@@ -80,9 +145,22 @@ function compareSweep(sweepId) {
   showCompare(true);
 }
 
-// After a user's action: the new list at once (the stream would bring it within a second).
+// After a user's action: the new list at once (the stream would bring it within a second). An answer
+// that arrives after a push is older than it and is dropped: applied, it would show an ended run as
+// running until the list changes again.
+let pushes = 0;  // how many run lists the stream has pushed
 async function refreshRuns() {
-  try { renderRuns(await api("GET", "/api/runs")); } catch (e) { /* the banner tells when the server is gone */ }
+  const before = pushes;
+  try {
+    const runs = await api("GET", "/api/runs");
+    if (pushes === before) drawRuns(runs);
+  } catch (e) { /* the banner tells when the server is gone */ }
+}
+
+// The stream's `runs` event.
+export function renderRuns(runs) {
+  pushes += 1;
+  drawRuns(runs);
 }
 
 // The run list, pushed by the stream when it changed: each run keeps its element, updated in place, so a
@@ -90,7 +168,7 @@ async function refreshRuns() {
 // or went. The checkpoint list is fetched again only when a run's checkpoint changed.
 const runNodes = new Map();  // run id -> {node, run, key, fields}
 let checkpointsKey = null;
-export function renderRuns(runs) {
+function drawRuns(runs) {
   const list = $("run-list");
   const nodes = runs.slice().reverse().map((run) => runNode(run));
   // Insert and remove around the elements that stay: moving an element would take its focus away.
@@ -158,7 +236,8 @@ function buildRunNode(run) {
       act("Inspect", (r) => inspectCheckpoint(r.checkpoint)),
       act("Evaluate", (r) => startEval({ run_id: r.id })),
       act("Delete", (r) => deleteRun(r)),
-      act("Compare sweep", (r) => compareSweep(r.sweep_id))));
+      act("Compare sweep", (r) => compareSweep(r.sweep_id)),
+      act("Stop sweep", (r) => stopSweep(r))));
   f["test-falls"].title = "share of the last test's episodes that ended in a fall (a clip that does not loop ends episodes early without one)";
   return entry;
 }
@@ -201,6 +280,8 @@ function updateRunNode({ run, node, fields: f }) {
   set(f.sweep, run.sweep_id ? `sweep #${run.sweep_id}` : "");
   f.sweep.parentNode.hidden = !run.sweep_id;
   f["Compare sweep"].hidden = !run.sweep_id;
+  f["Stop sweep"].hidden = !run.sweep_id;
+  f["Stop sweep"].title = "stop every queued and running run of this sweep (queued ones never start)";
 }
 
 // A refused action's reason, in a line above the list: a modal alert would block the page (a reload
@@ -218,6 +299,15 @@ async function runAction(run, action, body = {}) {
   } catch (e) { showRunError(run, e); }
   if (result && action === "resume") selectRun(run.id);
   if (result && action === "again") selectRun(result.id);
+  refreshRuns();
+}
+
+// Every run of the run's sweep, in one request (POST /api/runs/stop).
+async function stopSweep(run) {
+  try {
+    await api("POST", "/api/runs/stop", { sweep_id: run.sweep_id });
+    showRunError(run, null);
+  } catch (e) { showRunError(run, e); }
   refreshRuns();
 }
 

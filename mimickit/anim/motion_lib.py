@@ -16,7 +16,7 @@ import torch
 
 from mimickit.anim.kin_char_model import KinCharModel
 from mimickit.anim.motion import LoopMode, Motion, load_motion
-from mimickit.learning import mp_util
+from mimickit.util import ranks
 from mimickit.util import torch_util as tu
 from mimickit.util.config import ConfigModel, load_config
 from mimickit.util.errors import MimicKitError
@@ -114,11 +114,11 @@ class MotionLib:
     ) -> None:
         """A clip, a dataset yaml, or clips in memory with their weights (never split). A dataset is
         split across processes by `process_share`, as the reference does under several `--devices`:
-        `proc` = (rank, num_procs) whose share to load, by default this process's (mp_util)."""
+        `proc` = (rank, num_procs) whose share to load, by default this process's (util.ranks)."""
         self.char_model = char_model
         self.device = torch.device(device)
         if isinstance(motion_file, (str, Path)):
-            rank, num_procs = proc or (mp_util.get_proc_rank(), mp_util.get_num_procs())
+            rank, num_procs = proc or (ranks.get_proc_rank(), ranks.get_num_procs())
             entries = load_motion_list(motion_file, data_paths)
             share = process_share(entries, rank, num_procs, motion_file)
             if num_procs > 1 and len(entries) > 1:

@@ -1,4 +1,6 @@
-"""Throughput measurements of the MuJoCo engine against raw `mujoco.rollout` (not tests: they print figures).
+"""Throughput measurements of the MuJoCo engine against raw `mujoco.rollout` (not tests: they print figures),
+and that raw baseline (`RawRollout`, `raw_rollout(engine)`), which `mimickit bench` times env steps against.
+The engine interface knows nothing of it: the bench asks for it here.
 
 `python -m mimickit.engines.bench_util [num_envs ...]` prints env-steps/s of `MujocoEngine` stepping the
 project humanoid with random in-range PD targets next to raw rollout on the same compiled model with
@@ -17,7 +19,8 @@ import numpy as np
 import torch
 from mujoco import rollout
 
-from mimickit.engines.engine import EngineConfig, ObjType
+from mimickit.engines.engine import Engine, EngineConfig
+from mimickit.engines.engine_records import ObjType
 from mimickit.engines.mujoco_engine import MujocoEngine
 from mimickit.util.paths import PROJECT_DATA_DIR
 
@@ -66,6 +69,14 @@ class RawRollout:
 
     def close(self) -> None:
         self._rollout.close()
+
+
+def raw_rollout(engine: Engine) -> RawRollout | None:
+    """Raw `mujoco.rollout` on a MuJoCo engine's own compiled model and threads, from copies of its envs'
+    current states; None for an engine without a MuJoCo model of its own (Newton): env figures only."""
+    if not isinstance(engine, MujocoEngine):
+        return None
+    return RawRollout(engine.mj_model, engine.mj_datas, engine.num_threads, engine.config.substeps)
 
 
 def raw_rollout_steps_per_s(

@@ -27,7 +27,7 @@ from pydantic import Field, field_validator, model_validator
 
 from mimickit.anim.kin_char_model import KinCharModel
 from mimickit.anim.mjcf_char_model import load_char_model
-from mimickit.engines.engine_records import ObjLayout, ObjRecord
+from mimickit.engines.engine_records import ObjLayout, ObjRecord, ObjType
 from mimickit.util.config import ConfigModel, parse_config
 from mimickit.util.errors import MimicKitError
 from mimickit.util.registry import Entry, Registry
@@ -35,8 +35,6 @@ from mimickit.util.warn import warn
 
 if TYPE_CHECKING:
     import mujoco
-
-    from mimickit.engines.bench_util import RawRollout
 
 # Rate bounds: a typo such as sim_freq 3e7 would make one env step run millions of physics steps.
 MAX_SIM_FREQ = 10_000
@@ -56,11 +54,6 @@ class ControlMode(IntEnum):
 
 # Names accepted in yaml besides the member names ("pd_1d" is what the project brief calls pd_explicit).
 _CONTROL_MODE_ALIASES = {"pd_1d": ControlMode.pd_explicit}
-
-
-class ObjType(IntEnum):
-    rigid = 0
-    articulated = 1
 
 
 class EngineConfig(ConfigModel):
@@ -399,11 +392,6 @@ class Engine(abc.ABC):
 
     def close(self) -> None:
         """Release what the engine holds besides memory (the MuJoCo engine's worker threads); nothing here."""
-        return None
-
-    def raw_rollout(self) -> RawRollout | None:
-        """Raw `mujoco.rollout` over this engine's own compiled model and its envs' current states: the
-        baseline `mimickit bench` times env steps against. None for an engine without one."""
         return None
 
     def _check_view_env(self, env_id: int) -> int:

@@ -5,6 +5,7 @@ qpos/sensor columns, Newton joint_q/joint_qd columns)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -12,7 +13,13 @@ import torch
 
 if TYPE_CHECKING:
     from mimickit.anim.kin_char_model import KinCharModel
-    from mimickit.engines.engine import ObjType
+
+
+class ObjType(IntEnum):
+    """What `create_obj` builds: a rigid body or an articulated character (the reference's numbers)."""
+
+    rigid = 0
+    articulated = 1
 
 
 @dataclass(frozen=True)

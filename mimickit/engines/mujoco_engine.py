@@ -36,7 +36,6 @@ from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from functools import partial
-from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -47,9 +46,6 @@ from mimickit.engines.engine_records import ObjState, state_shapes
 from mimickit.engines.mujoco_scene import MjObjLayout, build_scene
 from mimickit.util import torch_util as tu
 from mimickit.util.np_rotation import cross, quat_rotate_wxyz, quat_wxyz_canonical, quat_wxyz_to_exp_map
-
-if TYPE_CHECKING:
-    from mimickit.engines.bench_util import RawRollout
 
 # MjData fields gathered into stacked [N, ...] arrays after every step: the body states are sensors.
 # (Actuator forces are read only when asked for: the envs never do.)
@@ -478,7 +474,7 @@ class MujocoEngine(Engine):
             return np.arange(self._num_envs)
         return np.asarray(_to_numpy(env_ids), dtype=np.int64).reshape(-1)
 
-    # ------------------------------------------------------------------ viewers and the bench
+    # ------------------------------------------------------------------ viewers
     def mujoco_view(self, env_id: int = 0) -> MujocoView:
         """The engine's own model and env `env_id`'s live MjData, with pending setter edits pushed (as any
         getter does): no copy, so drawing costs the simulation nothing."""
@@ -490,12 +486,6 @@ class MujocoEngine(Engine):
                 for rec, lay in zip(self._env_objs[0], self._layouts, strict=True)
             )
         return MujocoView(self.mj_model, self.mj_datas[i], self._view_objects)
-
-    def raw_rollout(self) -> RawRollout:
-        """`mujoco.rollout` on the engine's threads over its model, from copies of the envs' current states."""
-        from mimickit.engines.bench_util import RawRollout  # mujoco.rollout: only for the bench
-
-        return RawRollout(self.mj_model, self.mj_datas, self.num_threads, self._config.substeps)
 
     # ------------------------------------------------------------------ replay (benchmarks)
     def physics_state(self) -> tuple[np.ndarray, np.ndarray]:

@@ -116,6 +116,29 @@ def _object_layout(
     root = int(body_ids[0])
     free = m.body_jntnum[root] == 1
     root_jnt = int(m.body_jntadr[root])
+    actuated = has_motors(config.control_mode, rec, kin)
+    act_names = _actuator_names(kin) if actuated else []
+    lay = MjObjLayout(
+        kin=kin,
+        actuated=actuated,
+        prefix=prefix,
+        body_ids=body_ids,
+        root_qpos=int(m.jnt_qposadr[root_jnt]) if free else -1,
+        root_qvel=int(m.jnt_dofadr[root_jnt]) if free else -1,
+        mocap_id=-1 if free else int(m.body_mocapid[root]),
+        root_ipos=m.body_ipos[root].copy(),
+        act_ids=np.array([m.actuator(prefix + a).id for a in act_names], dtype=np.int64),
+        **_joint_columns(m, kin, body_ids),
+        **_sensor_layout(m, rec, kin, prefix),
+    )
+    lay.kp, lay.kd = mode_gains(config.control_mode, kin, lay.actuated)
+    return lay
+
+
+def _joint_columns(m: mujoco.MjModel, kin: KinCharModel, body_ids: np.ndarray) -> dict[str, np.ndarray]:
+    """`MjObjLayout`'s joint fields: for each non-root joint with DoFs, in joint order, its clip DoF
+    columns and qpos addresses (hinges: one each and the unit axis; balls: 3 columns, 4 quaternion
+    addresses), and the qvel addresses of all of them."""
     dof_qvel, hinge_cols, hinge_qpos, ball_cols, ball_qpos = [], [], [], [], []
     hinge_joints, hinge_axes, ball_joints = [], [], []
     for jid, joint in enumerate(kin.joints[1:]):
@@ -134,8 +157,21 @@ def _object_layout(
             ball_qpos.append([qadr + k for k in range(4)])
             dof_qvel += [vadr + k for k in range(3)]
             ball_joints.append(jid)
-    act_names = _actuator_names(kin) if has_motors(config.control_mode, rec, kin) else []
-    act_ids = np.array([m.actuator(prefix + a).id for a in act_names], dtype=np.int64)
+    return {
+        "dof_qvel": np.array(dof_qvel, dtype=np.int64),
+        "hinge_cols": np.array(hinge_cols, dtype=np.int64),
+        "hinge_qpos": np.array(hinge_qpos, dtype=np.int64),
+        "ball_cols": np.array(ball_cols, dtype=np.int64).reshape(-1, 3),
+        "ball_qpos": np.array(ball_qpos, dtype=np.int64).reshape(-1, 4),
+        "hinge_joints": np.array(hinge_joints, dtype=np.int64),
+        "hinge_axes": np.array(hinge_axes, dtype=np.float64).reshape(-1, 3),
+        "ball_joints": np.array(ball_joints, dtype=np.int64),
+    }
+
+
+def _sensor_layout(m: mujoco.MjModel, rec: ObjRecord, kin: KinCharModel, prefix: str) -> dict[str, np.ndarray]:
+    """`MjObjLayout`'s sensordata columns: each body's state sensors (quaternion columns in xyzw order)
+    and, unless the object is visual only, each body's contact and ground sensors."""
     body_adr = [
         [col for suffix, _, _ in _BODY_SENSORS for col in _sensor_columns(m, f"{prefix}{n}_{suffix}")]
         for n in kin.body_names
@@ -145,30 +181,11 @@ def _object_layout(
         for n in kin.body_names:
             contact_adr += _sensor_columns(m, f"{prefix}{n}_contact")
             ground_adr += _sensor_columns(m, f"{prefix}{n}_ground")
-    lay = MjObjLayout(
-        kin=kin,
-        actuated=has_motors(config.control_mode, rec, kin),
-        prefix=prefix,
-        body_ids=body_ids,
-        root_qpos=int(m.jnt_qposadr[root_jnt]) if free else -1,
-        root_qvel=int(m.jnt_dofadr[root_jnt]) if free else -1,
-        mocap_id=-1 if free else int(m.body_mocapid[root]),
-        root_ipos=m.body_ipos[root].copy(),
-        dof_qvel=np.array(dof_qvel, dtype=np.int64),
-        hinge_cols=np.array(hinge_cols, dtype=np.int64),
-        hinge_qpos=np.array(hinge_qpos, dtype=np.int64),
-        ball_cols=np.array(ball_cols, dtype=np.int64).reshape(-1, 3),
-        ball_qpos=np.array(ball_qpos, dtype=np.int64).reshape(-1, 4),
-        hinge_joints=np.array(hinge_joints, dtype=np.int64),
-        hinge_axes=np.array(hinge_axes, dtype=np.float64).reshape(-1, 3),
-        ball_joints=np.array(ball_joints, dtype=np.int64),
-        act_ids=act_ids.astype(np.int64),
-        body_adr=np.array(body_adr, dtype=np.int64)[:, _WXYZ_TO_XYZW_COLUMNS],
-        contact_adr=np.array(contact_adr, dtype=np.int64),
-        ground_adr=np.array(ground_adr, dtype=np.int64),
-    )
-    lay.kp, lay.kd = mode_gains(config.control_mode, kin, lay.actuated)
-    return lay
+    return {
+        "body_adr": np.array(body_adr, dtype=np.int64)[:, _WXYZ_TO_XYZW_COLUMNS],
+        "contact_adr": np.array(contact_adr, dtype=np.int64),
+        "ground_adr": np.array(ground_adr, dtype=np.int64),
+    }
 
 
 def _actuator_names(kin: KinCharModel) -> list[str]:

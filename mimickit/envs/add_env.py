@@ -59,6 +59,10 @@ class ADDEnv(AMPEnv):
         return self._disc_obs_from_hist(hist)
 
     # ---------------------------------------------------------------- per step
+    @property
+    def tracks_pose(self) -> bool:
+        return True  # its discriminator judges the difference to the reference's pose
+
     def _ref_each_step(self) -> bool:
         return True  # the reference every step: tracking, pose termination, demo disc obs
 

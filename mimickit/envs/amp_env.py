@@ -123,6 +123,10 @@ class AMPEnv(DeepMimicEnv):
         super()._reset_envs(env_ids)
         self._reset_disc_hist(env_ids)
 
+    @property
+    def tracks_pose(self) -> bool:
+        return False  # the discriminator rewards the style of the clips, not the reference's pose
+
     def _ref_each_step(self) -> bool:
         # AMP neither tracks nor rewards the reference: only the visual twin needs it every step.
         return self._enable_ref_char

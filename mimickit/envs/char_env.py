@@ -12,13 +12,14 @@ from mimickit.envs.base_env import BoxSpace
 from mimickit.envs.char_obs import compute_char_obs
 from mimickit.envs.env_config import CharEnvConfig
 from mimickit.envs.sim_env import SimEnv
+from mimickit.envs.viewable import Viewable
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
 
 CHAR_COLOR = (0.35, 0.45, 0.7)
 
 
-class CharEnv(SimEnv):
+class CharEnv(SimEnv, Viewable):
     config: CharEnvConfig
 
     # ----------------------------------------------------------- construction

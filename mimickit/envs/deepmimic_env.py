@@ -36,6 +36,7 @@ from mimickit.envs.deepmimic_rewards import (
     state_deltas,
 )
 from mimickit.envs.env_config import DeepMimicEnvConfig
+from mimickit.envs.viewable import TracksReference
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
 
@@ -55,7 +56,7 @@ class ResetBatch:
     char_state: dict[str, torch.Tensor]
 
 
-class DeepMimicEnv(CharEnv):
+class DeepMimicEnv(CharEnv, TracksReference):
     config: DeepMimicEnvConfig
 
     # ----------------------------------------------------------- construction
@@ -120,6 +121,10 @@ class DeepMimicEnv(CharEnv):
     @property
     def reward_weights(self) -> dict[str, float]:
         return dict(self._reward_weights)
+
+    @property
+    def tracks_pose(self) -> bool:
+        return True
 
     def get_ref_char_id(self) -> int | None:
         return self._ref_char_id if self._enable_ref_char else None

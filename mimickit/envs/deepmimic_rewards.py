@@ -19,12 +19,30 @@ from dataclasses import dataclass
 import torch
 
 from mimickit.util import torch_util as tu
+from mimickit.util.config import ConfigModel
 
 TERM_NAMES = ("pose", "vel", "root_pose", "root_vel", "key_pos")
+"""The terms, in the order of `compute_reward_errors`' rows; each has its two fields below."""
 TRACKING_NAMES = (
     "root_pos_err", "root_rot_err", "body_pos_err", "body_rot_err", "dof_vel_err", "root_vel_err",
     "root_ang_vel_err", "paper_pos_err_m", "paper_dof_vel_err",
 )  # fmt: skip
+
+
+class DeepMimicRewardConfig(ConfigModel):
+    """Each term's weight and scale, `reward_<term>_w` and `reward_<term>_scale` (the reference's yaml
+    fields): the reward is Σ w · exp(−scale · error). A new term's two fields go here, beside its error."""
+
+    reward_pose_w: float
+    reward_vel_w: float
+    reward_root_pose_w: float
+    reward_root_vel_w: float
+    reward_key_pos_w: float
+    reward_pose_scale: float
+    reward_vel_scale: float
+    reward_root_pose_scale: float
+    reward_root_vel_scale: float
+    reward_key_pos_scale: float
 
 
 @dataclass(frozen=True)

@@ -1,35 +1,18 @@
-"""Typed configs of the environments, and loading an env yaml (+ engine yaml) the reference's way.
-
-An env yaml is `env_name: ...`, the env's fields (under `env:` as in MimicKit's files, or at the top
-level), and an optional `engine:` block whose entries override the engine config (as the reference's env builder does).
+"""Typed configs of the environments (the reference's env yaml fields and defaults).
 
 Adding an env: write its config class here and its env class in its own module, then add one line to
-`ENVS` below the config classes (name → config class, "module:Class"). `load_env_configs` and
-`env_builder` read that table; nothing else names envs.
+`ENVS` in `env_builder` (name → config class, "module:Class"), which loads the yamls; nothing else names
+envs. This module imports no env: the envs import their configs from it.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from mimickit.engines.engine import EngineConfig, parse_engine_config
-from mimickit.util.config import ConfigModel, load_yaml, parse_config
-from mimickit.util.errors import MimicKitError
-from mimickit.util.registry import Entry, Registry
-from mimickit.util.warn import warn
-
-if TYPE_CHECKING:
-    from mimickit.envs.sim_env import SimEnv
-
-# Engine keys that only Isaac Gym / Isaac Lab read; MimicKit env yamls may carry them.
-_ISAAC_ONLY_KEYS = {"sim", "plane", "physx"}
-# Keys that describe the task rather than one engine's physics: kept when an env yaml's engine block
-# names another engine than the one chosen.
-_PORTABLE_ENGINE_KEYS = {"control_mode", "control_freq", "env_spacing", "ground_contact_height", "ball_joint_limits"}
-
+from mimickit.envs.deepmimic_rewards import DeepMimicRewardConfig
+from mimickit.util.config import ConfigModel
 
 # Bounds on numbers that size a buffer or a loop: one mistyped value must not mean a giant allocation.
 MAX_PHASE_ENCODING = 16  # frequencies 2^k: past 2^16 they are beyond a float32 phase's resolution
@@ -54,7 +37,9 @@ class CharEnvConfig(SimEnvConfig):
     camera_mode: str = "still"
 
 
-class DeepMimicEnvConfig(CharEnvConfig):
+class DeepMimicEnvConfig(CharEnvConfig, DeepMimicRewardConfig):
+    """The reward's weights and scales are `DeepMimicRewardConfig`'s (`deepmimic_rewards.py`, beside the terms)."""
+
     motion_file: str
     enable_early_termination: bool
     ref_char_offset: list[float] = Field(min_length=3, max_length=3)
@@ -73,16 +58,6 @@ class DeepMimicEnvConfig(CharEnvConfig):
     visualize_ref_char: bool = True
     contact_bodies: list[str] = Field([], max_length=1_000)
     joint_err_w: list[float] | None = Field(None, max_length=1_000)
-    reward_pose_w: float
-    reward_vel_w: float
-    reward_root_pose_w: float
-    reward_root_vel_w: float
-    reward_key_pos_w: float
-    reward_pose_scale: float
-    reward_vel_scale: float
-    reward_root_pose_scale: float
-    reward_root_vel_scale: float
-    reward_key_pos_scale: float
 
     @model_validator(mode="after")
     def _key_bodies_needed(self) -> DeepMimicEnvConfig:
@@ -147,71 +122,3 @@ class ViewMotionEnvConfig(CharEnvConfig):
 
 class CharDofTestEnvConfig(CharEnvConfig):
     global_obs: bool = False
-
-
-ENVS: Registry[CharEnvConfig, SimEnv] = Registry(
-    "env",
-    "mimickit.envs.sim_env:SimEnv",
-    {
-        "char": Entry(CharEnvConfig, "mimickit.envs.char_env:CharEnv"),
-        "deepmimic": Entry(DeepMimicEnvConfig, "mimickit.envs.deepmimic_env:DeepMimicEnv"),
-        "amp": Entry(AMPEnvConfig, "mimickit.envs.amp_env:AMPEnv"),
-        "add": Entry(ADDEnvConfig, "mimickit.envs.add_env:ADDEnv"),
-        "ase": Entry(ASEEnvConfig, "mimickit.envs.ase_env:ASEEnv"),
-        "task_location": Entry(TaskLocationEnvConfig, "mimickit.envs.task_location_env:TaskLocationEnv"),
-        "task_steering": Entry(TaskSteeringEnvConfig, "mimickit.envs.task_steering_env:TaskSteeringEnv"),
-        "view_motion": Entry(ViewMotionEnvConfig, "mimickit.envs.view_motion_env:ViewMotionEnv"),
-        "char_dof_test": Entry(CharDofTestEnvConfig, "mimickit.envs.char_dof_test_env:CharDofTestEnv"),
-    },
-)
-"""Every env by its yaml `env_name`: `load_env_configs` and `env_builder` both use this table."""
-
-
-def load_env_configs(
-    env_file: str | Path, engine_file: str | Path | None, motion_file: str | Path | None = None
-) -> tuple[CharEnvConfig, EngineConfig]:
-    """Read and validate an env yaml and an engine yaml (the env's `engine:` block merged in);
-    `motion_file` (`--motion_file`) replaces the env's clip or dataset."""
-    raw = load_yaml(env_file)
-    env_name = raw.get("env_name")
-    if env_name is None:
-        raise MimicKitError(f"{env_file}: missing required key 'env_name'")
-    if env_name not in ENVS:
-        raise MimicKitError(f"{env_file}: key 'env_name': {ENVS.unknown(env_name)}")
-    fields = (
-        dict(raw["env"])
-        if isinstance(raw.get("env"), dict)
-        else {k: v for k, v in raw.items() if k not in ("env_name", "engine")}
-    )
-    fields["env_name"] = env_name
-    env_cfg = parse_config(ENVS.config_class(env_name), fields, env_file)
-    if motion_file is not None:
-        if not hasattr(env_cfg, "motion_file"):
-            raise MimicKitError(f"--motion_file: env {env_name!r} ({env_file}) has no motion_file to replace")
-        env_cfg = env_cfg.model_copy(update={"motion_file": str(motion_file)})
-    engine_raw = load_yaml(engine_file) if engine_file else {}
-    engine_raw = merge_engine_overrides(engine_raw, raw.get("engine") or {}, env_file)
-    if not engine_raw:
-        raise MimicKitError(f"{env_file}: no engine config given (--engine_config) and no engine: block")
-    source = engine_file or env_file
-    return env_cfg, parse_engine_config(engine_raw, source)
-
-
-def merge_engine_overrides(engine: dict[str, Any], override: dict[str, Any], env_file: str | Path) -> dict[str, Any]:
-    if not engine:
-        return {k: v for k, v in override.items() if k not in _ISAAC_ONLY_KEYS}
-    merged = dict(engine)
-    other_engine = "engine_name" in override and override["engine_name"] != engine.get("engine_name")
-    dropped = []
-    for key, val in override.items():
-        if key in _ISAAC_ONLY_KEYS or (other_engine and key not in _PORTABLE_ENGINE_KEYS):
-            dropped.append(key)
-            continue
-        merged[key] = val
-    if dropped:
-        warn(
-            f"{env_file}: engine keys {dropped} belong to engine {override.get('engine_name', 'isaac')!r} "
-            f"and are ignored for {engine.get('engine_name')!r}",
-            stacklevel=2,
-        )
-    return merged

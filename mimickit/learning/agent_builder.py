@@ -1,5 +1,5 @@
-"""Build an agent from an agent yaml, choosing the class by `agent_name` from the `AGENTS` table in
-`agent_config` (where a new agent is registered: one line there, nothing here).
+"""Load an agent yaml and build its agent, choosing the class by `agent_name` from the `AGENTS` table below
+(where a new agent is registered: its config class from `agent_config` and its "module:Class", one line).
 
 No agent file (None or "") gives the `DummyAgent` (zero actions), as the reference.
 """
@@ -13,10 +13,46 @@ import torch
 
 from mimickit.envs.base_env import BaseEnv
 from mimickit.learning import mp_util
-from mimickit.learning.agent_config import AGENTS, BaseAgentConfig, DummyAgentConfig, load_agent_config
+from mimickit.learning.agent_config import (
+    ADDAgentConfig,
+    AMPAgentConfig,
+    ASEAgentConfig,
+    AWRAgentConfig,
+    BaseAgentConfig,
+    DummyAgentConfig,
+    PPOAgentConfig,
+)
 from mimickit.learning.base_agent import BaseAgent
+from mimickit.util.config import load_yaml, parse_config
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import DataPaths
+from mimickit.util.registry import Entry, Registry
+
+AGENTS: Registry[BaseAgentConfig, BaseAgent] = Registry(
+    "agent",
+    "mimickit.learning.base_agent:BaseAgent",
+    {
+        "PPO": Entry(PPOAgentConfig, "mimickit.learning.ppo_agent:PPOAgent"),
+        "AWR": Entry(AWRAgentConfig, "mimickit.learning.awr_agent:AWRAgent"),
+        "AMP": Entry(AMPAgentConfig, "mimickit.learning.amp_agent:AMPAgent"),
+        "ADD": Entry(ADDAgentConfig, "mimickit.learning.add_agent:ADDAgent"),
+        "ASE": Entry(ASEAgentConfig, "mimickit.learning.ase_agent:ASEAgent"),
+        "Dummy": Entry(DummyAgentConfig, "mimickit.learning.dummy_agent:DummyAgent"),
+    },
+    not_ported={"LCP": "not ported yet", "SMP": "not ported yet"},
+)
+"""Every agent by its yaml `agent_name`: `load_agent_config` and the builders below use this table."""
+
+
+def load_agent_config(path: str | Path) -> BaseAgentConfig:
+    """Read an agent yaml and validate it against the config class of its `agent_name`."""
+    data = load_yaml(path)
+    name = data.get("agent_name")
+    if name is None:
+        raise MimicKitError(f"{path}: missing required key 'agent_name'")
+    if name not in AGENTS:
+        raise MimicKitError(f"{path}: key 'agent_name': {AGENTS.unknown(name)}")
+    return parse_config(AGENTS.config_class(name), data, path)
 
 
 def build_agent(

@@ -1,28 +1,22 @@
-"""Typed configs of the agents (the reference's agent yaml fields and defaults) and loading an agent yaml.
+"""Typed configs of the agents (the reference's agent yaml fields and defaults).
 
 The reference's agent yamls are the format. An unknown key, a wrong type or a missing required key is
 one `MimicKitError` naming the file and the key; numbers written like `1e-4` are numbers. Batch sizes
 (`actor_batch_size`, `critic_batch_size`) are in units of `num_envs`, as in the reference.
 
 Adding an agent: write its config class here and its agent class in its own module, then add one line
-to `AGENTS` at the end of this file (name → config class, "module:Class"). The loader and
-`agent_builder` read that table; nothing else names agents.
+to `AGENTS` in `agent_builder` (name → config class, "module:Class"); nothing else names agents. This
+module imports no agent: the agents import their configs from it.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 
-from mimickit.util.config import ConfigModel, load_yaml, parse_config
-from mimickit.util.errors import MimicKitError
-from mimickit.util.registry import Entry, Registry
-
-if TYPE_CHECKING:
-    from mimickit.learning.base_agent import BaseAgent
+from mimickit.util.config import ConfigModel
 
 NetName = Literal[
     "fc_2layers_128units",
@@ -189,30 +183,3 @@ class ASEAgentConfig(AMPAgentConfig):
         if self.latent_time_max < self.latent_time_min:
             raise ValueError("latent_time_max must be >= latent_time_min")
         return self
-
-
-AGENTS: Registry[BaseAgentConfig, BaseAgent] = Registry(
-    "agent",
-    "mimickit.learning.base_agent:BaseAgent",
-    {
-        "PPO": Entry(PPOAgentConfig, "mimickit.learning.ppo_agent:PPOAgent"),
-        "AWR": Entry(AWRAgentConfig, "mimickit.learning.awr_agent:AWRAgent"),
-        "AMP": Entry(AMPAgentConfig, "mimickit.learning.amp_agent:AMPAgent"),
-        "ADD": Entry(ADDAgentConfig, "mimickit.learning.add_agent:ADDAgent"),
-        "ASE": Entry(ASEAgentConfig, "mimickit.learning.ase_agent:ASEAgent"),
-        "Dummy": Entry(DummyAgentConfig, "mimickit.learning.dummy_agent:DummyAgent"),
-    },
-    not_ported={"LCP": "not ported yet", "SMP": "not ported yet"},
-)
-"""Every agent by its yaml `agent_name`: the loader below and `agent_builder` both use this table."""
-
-
-def load_agent_config(path: str | Path) -> BaseAgentConfig:
-    """Read an agent yaml and validate it against the config class of its `agent_name`."""
-    data = load_yaml(path)
-    name = data.get("agent_name")
-    if name is None:
-        raise MimicKitError(f"{path}: missing required key 'agent_name'")
-    if name not in AGENTS:
-        raise MimicKitError(f"{path}: key 'agent_name': {AGENTS.unknown(name)}")
-    return parse_config(AGENTS.config_class(name), data, path)

@@ -44,8 +44,8 @@ from mimickit.learning.logger import Logger
 from mimickit.learning.mp_optimizer import MPOptimizer
 from mimickit.learning.normalizer import Normalizer
 from mimickit.learning.return_tracker import ReturnTracker
+from mimickit.learning.run_folder import INT_MODELS_DIR, MODEL_FILE, int_model_name, resume_row
 from mimickit.learning.update_threads import update_threads
-from mimickit.run_folder import INT_MODELS_DIR, MODEL_FILE, int_model_name, resume_row
 from mimickit.util.errors import MimicKitError
 from mimickit.util.threads import torch_threads
 
@@ -155,6 +155,37 @@ class BaseAgent(nn.Module, abc.ABC):
         out_dir = Path(out_dir)
         model_file = out_dir / MODEL_FILE
         int_dir = out_dir / INT_MODELS_DIR if save_int_models else None
+        logger = self._open_run(out_dir, int_dir, logger_type, max_samples)
+        saved_iter = None
+        diverged = ""
+        out_of_time = False
+        try:
+            while self._sample_count < max_samples and not out_of_time and not self._sync_stop_flag():
+                step = self.train_iteration()
+                if step is None:  # stopped mid-rollout: the partial iteration is discarded
+                    break
+                out_of_time = self._out_of_time(max_hours)
+                output = not step.non_finite and self._is_output_iter(max_samples, out_of_time)
+                self._log_iteration(logger, step.info, output)
+                if step.non_finite:
+                    diverged = self._diverge(logger, step, model_file, saved_iter)
+                    break
+                if output:
+                    self._write_output(logger, model_file, int_dir)
+                    saved_iter = self._iter
+                self._iter += 1
+            stopped = not diverged and not out_of_time and self._sample_count < max_samples
+            if stopped and saved_iter != self._iter - 1 and self._iter > 0:
+                self._write_checkpoint(model_file, self._iter)
+        finally:
+            self._wall_time_offset = self._current_wall_hours()
+            self._train_start = None
+            logger.close()
+        return TrainSummary(self._iter, self._sample_count, stopped, model_file, diverged, out_of_time and not diverged)
+
+    def _open_run(self, out_dir: Path, int_dir: Path | None, logger_type: str, max_samples: int) -> Logger:
+        """The run folder (rank 0 makes it and clears the temp files of a save that crashed), its logger,
+        fresh episodes and the clock; a resumed run's marker row."""
         if mp_util.is_root_proc():
             out_dir.mkdir(parents=True, exist_ok=True)
             checkpoint.remove_stale_temp_files(out_dir)
@@ -169,47 +200,33 @@ class BaseAgent(nn.Module, abc.ABC):
         if resumed:
             logger.print(f"Resuming at iteration {self._iter}, {self._sample_count} samples")
             logger.write_event(resume_row(self._iter, self._sample_count, self._current_wall_hours(), max_samples))
+        return logger
 
-        saved_iter = None
-        diverged = ""
-        out_of_time = False
-        try:
-            while self._sample_count < max_samples and not out_of_time and not self._sync_stop_flag():
-                step = self.train_iteration()
-                if step is None:  # stopped mid-rollout: the partial iteration is discarded
-                    break
-                train_info, non_finite = step.info, step.non_finite
-                out_of_time = self._out_of_time(max_hours)
-                output = not non_finite and (
-                    self._iter % self.config.iters_per_output == 0 or self._sample_count >= max_samples or out_of_time
-                )
-                if output:
-                    test = self.test_model(self.config.test_episodes)
-                    if test.num_eps > 0 or not self._stop_requested:  # keep the last result if a stop cut it short
-                        self._last_test = test
-                self._log_train_info(logger, train_info, self._env.record_diagnostics())
-                logger.print_log()
-                logger.write_metrics(output)
-                if non_finite:
-                    diverged = f"diverged at iteration {self._iter}: {non_finite}"
-                    logger.print(diverged)
-                    logger.write_note(diverged)
-                    self._roll_back(step.before)
-                    if saved_iter != self._iter - 1:  # else model.pt already holds these weights
-                        self._write_checkpoint(model_file, self._iter)
-                    break
-                if output:
-                    self._write_output(logger, model_file, int_dir)
-                    saved_iter = self._iter
-                self._iter += 1
-            stopped = not diverged and not out_of_time and self._sample_count < max_samples
-            if stopped and saved_iter != self._iter - 1 and self._iter > 0:
-                self._write_checkpoint(model_file, self._iter)
-        finally:
-            self._wall_time_offset = self._current_wall_hours()
-            self._train_start = None
-            logger.close()
-        return TrainSummary(self._iter, self._sample_count, stopped, model_file, diverged, out_of_time and not diverged)
+    def _is_output_iter(self, max_samples: int, out_of_time: bool) -> bool:
+        """Every `iters_per_output` iterations, and the last one (the budget in samples or time is reached)."""
+        return self._iter % self.config.iters_per_output == 0 or self._sample_count >= max_samples or out_of_time
+
+    def _log_iteration(self, logger: Logger, train_info: dict[str, float], output: bool) -> None:
+        """The terminal table and the metrics row of this iteration; on an output iteration, test episodes
+        first, whose result the row (and log.txt) carries."""
+        if output:
+            test = self.test_model(self.config.test_episodes)
+            if test.num_eps > 0 or not self._stop_requested:  # keep the last result if a stop cut it short
+                self._last_test = test
+        self._log_train_info(logger, train_info, self._env.record_diagnostics())
+        logger.print_log()
+        logger.write_metrics(output)
+
+    def _diverge(self, logger: Logger, step: IterationStep, model_file: Path, saved_iter: int | None) -> str:
+        """The end of a diverged run: the reason to the terminal and log.txt, the agent rolled back to the
+        finite state the iteration started from, which model.pt then holds. Returns the reason."""
+        reason = f"diverged at iteration {self._iter}: {step.non_finite}"
+        logger.print(reason)
+        logger.write_note(reason)
+        self._roll_back(step.before)
+        if saved_iter != self._iter - 1:  # else model.pt already holds these weights
+            self._write_checkpoint(model_file, self._iter)
+        return reason
 
     def _out_of_time(self, max_hours: float | None) -> bool:
         """Whether the recorded wall time reached `max_hours`, by rank 0's clock (every rank agrees)."""

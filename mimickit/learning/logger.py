@@ -10,7 +10,7 @@ for per-term means that only go to metrics.jsonl and TensorBoard), then:
   `tracking.<name>`), `output` (whether this iteration ran the test episodes; otherwise the test
   values are the previous ones) and `time` (unix seconds). A NaN or infinite value stays one
   (Python json's `NaN` / `Infinity` / `-Infinity` tokens), so a diverged run's curves show it;
-* `write_event(row)`: a marker row, e.g. a resume (`mimickit.run_folder.resume_row`); it has an
+* `write_event(row)`: a marker row, e.g. a resume (`mimickit.learning.run_folder.resume_row`); it has an
   `event` key and no metric columns, so readers tell it from iteration rows;
 * `write_note(line)`: a `# line` in log.txt (a comment to numpy.genfromtxt and `mimickit plot`);
 * `write_log()` on output iterations: a row of `log.txt` in the reference's columns (header of all
@@ -24,19 +24,21 @@ existing log.txt columns.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import torch
 from tqdm import tqdm
 
 from mimickit.learning import mp_util
-from mimickit.run_folder import LOG_FILE, LOG_NOTE_PREFIX, METRICS_FILE
+from mimickit.learning.run_folder import LOG_FILE, LOG_NOTE_PREFIX, METRICS_FILE
 from mimickit.util.errors import MimicKitError
 
 LOGGER_TYPES = ("txt", "tb", "wandb")
@@ -127,24 +129,28 @@ class Logger:
     def write_note(self, line: str) -> None:
         """Append `# line` to log.txt (rank 0): a note between the table's rows, e.g. why training stopped."""
         if self._root and self._log_file is not None:
-            self._log_file.write(f"{LOG_NOTE_PREFIX}{line}\n")
-            self._log_file.flush()
+            with _naming(self._log_file):
+                self._log_file.write(f"{LOG_NOTE_PREFIX}{line}\n")
+                self._log_file.flush()
 
     def _write_row(self, row: dict[str, Any]) -> None:
         assert self._metrics_file is not None
-        self._metrics_file.write(json.dumps(row) + "\n")  # allow_nan: NaN stays NaN
-        self._metrics_file.flush()
+        with _naming(self._metrics_file):
+            self._metrics_file.write(json.dumps(row) + "\n")  # allow_nan: NaN stays NaN
+            self._metrics_file.flush()
 
     def write_log(self) -> None:
         """Write a log.txt row (header first) and the TensorBoard / wandb scalars (rank 0)."""
         if not self._root:
             return
         if self._log_file is not None:
-            if self._header is None:
-                self._header = list(self._entries)
-                self._log_file.write(_row(self._header))
-            self._log_file.write(_row([self._entries[k].val if k in self._entries else math.nan for k in self._header]))
-            self._log_file.flush()
+            with _naming(self._log_file):
+                if self._header is None:
+                    self._header = list(self._entries)
+                    self._log_file.write(_row(self._header))
+                values = [self._entries[k].val if k in self._entries else math.nan for k in self._header]
+                self._log_file.write(_row(values))
+                self._log_file.flush()
         step = int(self.get(self._step_key) or 0)
         scalars = {f"{e.collection}/{k}": e.val for k, e in self._entries.items()}
         scalars.update({f"{_metric_collection(k)}/{k}": v for k, v in self._metrics.items()})
@@ -161,9 +167,7 @@ class Logger:
             self._print(msg)
 
     def close(self) -> None:
-        for f in (self._log_file, self._metrics_file):
-            if f is not None:
-                f.close()
+        files = [f for f in (self._log_file, self._metrics_file) if f is not None]
         self._log_file = self._metrics_file = None
         if self._tb is not None:
             self._tb.close()
@@ -174,6 +178,9 @@ class Logger:
         if self._bar is not None:
             self._bar.close()
             self._bar = None
+        with contextlib.ExitStack() as closing:  # every file closed, even when one cannot flush (a full disk)
+            for f in files:
+                closing.callback(_close_named, f)
 
     def _open_files(self, append: bool, logger_type: str, run_config: dict[str, Any] | None) -> None:
         self._out_dir.mkdir(parents=True, exist_ok=True)
@@ -210,6 +217,22 @@ class Logger:
             self._bar.write(msg)
         else:
             print(msg, flush=True)
+
+
+@contextlib.contextmanager
+def _naming(f: IO[str]) -> Iterator[None]:
+    """An OS error while writing `f` names its file (a full disk's error at a flush names none)."""
+    try:
+        yield
+    except OSError as e:
+        if e.filename is not None:
+            raise
+        raise OSError(e.errno, e.strerror, f.name) from e
+
+
+def _close_named(f: IO[str]) -> None:
+    with _naming(f):
+        f.close()
 
 
 def _read_header(log_path: Path) -> list[str] | None:

@@ -18,9 +18,15 @@ from typing import TypeVar
 import torch
 import torch.distributed as dist
 
-_num_procs = 1
-_rank = 0
-_device = torch.device("cpu")
+from mimickit.util import ranks
+
+# The process's rank, count and device are kept in util.ranks (the motion library, below learning, reads
+# them); these are the reference's names for them.
+from mimickit.util.ranks import enable_mp as enable_mp
+from mimickit.util.ranks import get_device as get_device
+from mimickit.util.ranks import get_num_procs as get_num_procs
+from mimickit.util.ranks import get_proc_rank as get_proc_rank
+from mimickit.util.ranks import is_root_proc as is_root_proc
 
 Scalar = TypeVar("Scalar", int, float, torch.Tensor)
 
@@ -28,16 +34,16 @@ Scalar = TypeVar("Scalar", int, float, torch.Tensor)
 def init(rank: int, num_procs: int, device: torch.device | str, master_port: int | None) -> None:
     """Join the process group of `num_procs` processes as `rank` (no group when `num_procs` is 1), at
     localhost:`master_port`, or with `master_port` None at the environment's MASTER_ADDR:MASTER_PORT."""
-    global _num_procs, _rank, _device
-    _num_procs, _rank, _device = num_procs, rank, torch.device(device)
+    ranks.set_proc(rank, num_procs, device)
     if num_procs <= 1:
         return
     if master_port is not None:
         os.environ["MASTER_ADDR"] = "localhost"
         os.environ["MASTER_PORT"] = str(master_port)
-    backend = "nccl" if _device.type == "cuda" and sys.platform != "win32" else "gloo"
-    if _device.type == "cuda":
-        torch.cuda.set_device(_device)
+    device = get_device()
+    backend = "nccl" if device.type == "cuda" and sys.platform != "win32" else "gloo"
+    if device.type == "cuda":
+        torch.cuda.set_device(device)
     dist.init_process_group(backend, init_method="env://", rank=rank, world_size=num_procs)
 
 
@@ -46,32 +52,11 @@ def shutdown(synchronize: bool = True) -> None:
     process got here: gloo aborts a process (SIGABRT) that tears its group down while a peer still
     talks to it, and so does an interpreter exiting with the group alive. Without it (this process
     failed, its peers may never arrive) the group is torn down at once."""
-    global _num_procs, _rank
-    if _num_procs > 1 and dist.is_initialized():
+    if enable_mp() and dist.is_initialized():
         if synchronize:
             dist.barrier()
         dist.destroy_process_group()
-    _num_procs, _rank = 1, 0
-
-
-def get_num_procs() -> int:
-    return _num_procs
-
-
-def get_proc_rank() -> int:
-    return _rank
-
-
-def get_device() -> torch.device:
-    return _device
-
-
-def is_root_proc() -> bool:
-    return _rank == 0
-
-
-def enable_mp() -> bool:
-    return _num_procs > 1
+    ranks.set_proc(0, 1, get_device())
 
 
 def broadcast(x: torch.Tensor) -> torch.Tensor:
@@ -86,7 +71,7 @@ def broadcast_int(x: int) -> int:
     """Rank 0's `x` on every process (e.g. a seed only rank 0 drew)."""
     if not enable_mp():
         return x
-    t = torch.tensor([x], dtype=torch.int64, device=_device)
+    t = torch.tensor([x], dtype=torch.int64, device=get_device())
     dist.broadcast(t, src=0)
     return int(t.item())
 
@@ -110,8 +95,8 @@ def reduce_max(x: Scalar) -> Scalar:
 def reduce_mean(x: Scalar) -> Scalar:
     total = reduce_sum(x)
     if isinstance(total, int):
-        return total // _num_procs if _num_procs > 1 else total
-    return total / _num_procs
+        return total // get_num_procs() if enable_mp() else total
+    return total / get_num_procs()
 
 
 def reduce_inplace_sum(x: torch.Tensor) -> None:
@@ -122,7 +107,7 @@ def reduce_inplace_sum(x: torch.Tensor) -> None:
 def reduce_inplace_mean(x: torch.Tensor) -> None:
     if enable_mp():
         dist.all_reduce(x, op=dist.ReduceOp.SUM)
-        x /= _num_procs
+        x /= get_num_procs()
 
 
 def reduce_inplace_min(x: torch.Tensor) -> None:
@@ -160,6 +145,6 @@ def _reduce(x: Scalar, op: dist.ReduceOp) -> Scalar:
         dist.all_reduce(out, op=op)
         return out
     dtype = torch.int64 if isinstance(x, (int, bool)) else torch.float64
-    t = torch.tensor([x], dtype=dtype, device=_device)
+    t = torch.tensor([x], dtype=dtype, device=get_device())
     dist.all_reduce(t, op=op)
     return type(x)(t.item()) if not isinstance(x, bool) else int(t.item())

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from mimickit.engines.bench_util import raw_rollout
 from mimickit.engines.engine import ControlMode
 from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.env_builder import build_env
@@ -54,7 +55,7 @@ def run_bench(
     with torch.inference_mode(), torch_threads(1):
         for _ in range(warmup):
             one_step()
-        raw = engine.raw_rollout()  # None for an engine without a raw MuJoCo baseline: env figures only
+        raw = raw_rollout(engine)  # None for an engine without a raw MuJoCo baseline: env figures only
         replay = raw is not None and raw_mode == "replay"
         if replay and engine.config.control_mode == ControlMode.pd_explicit:
             raise MimicKitError("--raw replay needs controls held over a step; pd_explicit recomputes them per substep")

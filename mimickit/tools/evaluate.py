@@ -2,7 +2,7 @@
 
 Each clip gets an env of its own (the arg file's configs with `motion_file` replaced by that one clip,
 as `mimickit test --motion_file` does), the checkpoint loaded into a fresh agent, and the test episodes
-of `mimickit test` (`run.test_result`: the agent's `test_model`, the env's tracking errors and how the
+of `mimickit test` (`runner.policy.test_result`: the agent's `test_model`, the env's tracking errors and how the
 episodes ended). Every clip starts from the same seed, so a row does not depend on the clips before it.
 
 A row: `clip` (the path as the dataset writes it), `weight`, `episodes` (every finished one counts, so
@@ -62,8 +62,8 @@ class EvalClip:
 def evaluate(arg_file: str, model_file: str, opts: EvalOptions) -> dict[str, Any]:
     """{"rows": one per clip, "mean": their episode-weighted mean}; one MimicKitError for bad input
     (arguments, configs, a clip, a dataset or a checkpoint), before any clip runs where it can be found."""
-    from mimickit import run
-    from mimickit.run_args import check_run_args
+    from mimickit.runner.args import check_run_args
+    from mimickit.runner.inputs import resolve_inputs
 
     for name, value in (("--episodes", opts.episodes), ("--num_envs", opts.num_envs or 1)):
         if value < 1:
@@ -72,7 +72,7 @@ def evaluate(arg_file: str, model_file: str, opts: EvalOptions) -> dict[str, Any
     num_envs = opts.num_envs or min(opts.episodes, MAX_DEFAULT_ENVS)
     args = _run_args(arg_file, model_file, opts, num_envs, paths)
     check_run_args(args, probe_out_dir=False)  # the arg file's keys, the counts, --model_file
-    inputs = run.resolve_inputs(args, paths)
+    inputs = resolve_inputs(args, paths)
     given = args.parse_string("motion_file", "") or None  # --motion_file, or the arg file's
     clips = dataset_clips(inputs.motion_file or _env_motion_file(inputs), given=given, data_paths=paths)
     _check_clips(clips)
@@ -93,7 +93,7 @@ def _run_args(arg_file: str, model_file: str, opts: EvalOptions, num_envs: int, 
 
 
 def _env_motion_file(inputs: Any) -> str:
-    from mimickit.envs.env_config import load_env_configs
+    from mimickit.envs.env_builder import load_env_configs
 
     env_cfg, _ = load_env_configs(inputs.env_file, inputs.engine_file)
     motion = getattr(env_cfg, "motion_file", None)
@@ -130,21 +130,21 @@ def _check_clips(clips: list[EvalClip]) -> None:
 
 
 def _eval_clip(inputs: Any, model_file: str, clip: EvalClip, num_envs: int, opts: EvalOptions) -> dict[str, Any]:
-    from mimickit import run
-    from mimickit.policy import load_policy
+    from mimickit.runner.policy import load_policy, test_result
+    from mimickit.runner.seeding import seed_everything
     from mimickit.util.arg_parser import ArgParser
 
-    run.seed_everything(ArgParser(), 0, opts.rand_seed)
+    seed_everything(ArgParser(), 0, opts.rand_seed)
     env, agent = load_policy(replace(inputs, motion_file=str(clip.path)), model_file, num_envs, DEVICE)
     try:
-        result = run.test_result(agent, env, opts.episodes)
+        result = test_result(agent, env, opts.episodes)
     finally:
         env.engine.close()
     return clip_row(clip, result)
 
 
 def clip_row(clip: EvalClip, result: dict[str, Any]) -> dict[str, Any]:
-    """A row from `run.test_result`'s dict (its `episode_ends` counts say which episodes failed)."""
+    """A row from `test_result`'s dict (its `episode_ends` counts say which episodes failed)."""
     ends, tracking = result["episode_ends"], result["tracking"]
     if "paper_pos_err_m" not in tracking or not ends:
         raise MimicKitError(f"{clip.name}: the env reports no tracking errors (it needs a DeepMimic-family env)")

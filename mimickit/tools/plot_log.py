@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mimickit.run_folder import EVENT_KEY, LOG_FILE, LOG_NOTE_PREFIX, METRICS_FILE
+from mimickit.learning.run_folder import EVENT_KEY, LOG_FILE, LOG_NOTE_PREFIX, METRICS_FILE
 from mimickit.util.errors import MimicKitError
 
 X_COLUMNS = ("samples", "iteration", "wall_time")

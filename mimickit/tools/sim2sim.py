@@ -20,11 +20,10 @@ from typing import Any
 import torch
 
 from mimickit.envs.base_env import DoneFlags
-from mimickit.envs.env_builder import build_env_from_configs
-from mimickit.envs.env_config import load_env_configs
+from mimickit.envs.env_builder import build_env_from_configs, load_env_configs
 from mimickit.envs.sim_env import SimEnv
 from mimickit.learning.agent_builder import build_agent
-from mimickit.policy import policy_inputs
+from mimickit.runner.policy import policy_inputs
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA, DataPaths
 

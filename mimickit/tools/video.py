@@ -34,12 +34,13 @@ from mimickit.envs.char_env import CHAR_COLOR, CharEnv
 from mimickit.envs.env_config import ViewMotionEnvConfig
 from mimickit.envs.view_motion_env import ViewMotionEnv
 from mimickit.learning.base_agent import AgentMode, BaseAgent
-from mimickit.policy import load_policy
-from mimickit.run import resolve_inputs, seed_everything
+from mimickit.runner.inputs import resolve_inputs
+from mimickit.runner.policy import load_policy
+from mimickit.runner.seeding import seed_everything
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import load_config, parse_config
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import PROJECT_DATA, PROJECT_DATA_DIR, DataPaths
+from mimickit.util.paths import PROJECT_DATA, PROJECT_DATA_DIR, DataPaths, check_output_file
 
 GL_BACKENDS = ("egl", "osmesa")
 GHOST_ALPHA = 0.4
@@ -67,8 +68,8 @@ _PROBE = (
 @dataclass
 class VideoOptions:
     seconds: float = 5.0
-    width: int = 320
-    height: int = 240
+    width: int = 640  # as the studio's Export MP4
+    height: int = 480
     frame_png: Path | None = None
     """Also save the last frame as a PNG."""
     data_paths: DataPaths = PROJECT_DATA
@@ -260,6 +261,10 @@ def write_mp4(path: str | Path, frames: Iterable[np.ndarray], fps: float, width:
             count += 1
         writer.close()
         os.replace(tmp, path)
+    except OSError as e:  # ffmpeg could not open or write the file: one line, not its whole output
+        lines = str(e).strip().splitlines()
+        why = e.strerror or (lines[0] if lines else type(e).__name__)
+        raise MimicKitError(f"{str(path)[:200]}: cannot write the video ({why[:200]})") from None
     finally:
         writer.close()
         tmp.unlink(missing_ok=True)
@@ -268,7 +273,8 @@ def write_mp4(path: str | Path, frames: Iterable[np.ndarray], fps: float, width:
 
 def _check_output(out: Path, opts: VideoOptions) -> None:
     if out.suffix.lower() != ".mp4":
-        raise MimicKitError(f"--out must be an .mp4 file, got {out}")
+        raise MimicKitError(f"--out must be an .mp4 file, got {str(out)[:200]}")
+    check_output_file(out)
     if opts.seconds <= 0:
         raise MimicKitError(f"--seconds must be positive, got {opts.seconds:g}")
     if opts.width < 16 or opts.height < 16 or opts.width % 2 or opts.height % 2:

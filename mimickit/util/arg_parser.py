@@ -6,13 +6,13 @@ same keys in the arg file; booleans are true for `true, True, 1, T, t`.
 
 The parser remembers where each key came from (`source`: the command line or the arg file's path),
 so an error about a value can say where to fix it. An arg file must be UTF-8 text (a binary one is
-one error line naming it). Which keys a run knows and what values they take: `mimickit.run_args`.
+one error line naming it). Which keys a run knows and what values they take: `mimickit.runner.args`.
 """
 
 from __future__ import annotations
 
 from mimickit.util.config import read_text_file
-from mimickit.util.errors import MimicKitError
+from mimickit.util.errors import MimicKitError, shorten
 from mimickit.util.paths import PROJECT_DATA, DataPaths
 
 _TRUE = {"true", "True", "1", "T", "t"}
@@ -92,7 +92,7 @@ class ArgParser:
                 raise ValueError(val)
             return int(f)
         except (ValueError, OverflowError):
-            raise MimicKitError(f"--{key}: expected an integer, got {_short(val)!r}") from None
+            raise MimicKitError(f"--{key}: expected an integer, got {shorten(val, 80)!r}") from None
 
     def parse_float(self, key: str, default: float = 0.0) -> float:
         val = self.parse_string(key, "")
@@ -101,7 +101,7 @@ class ArgParser:
         try:
             return float(val)
         except ValueError:
-            raise MimicKitError(f"--{key}: expected a number, got {_short(val)!r}") from None
+            raise MimicKitError(f"--{key}: expected a number, got {shorten(val, 80)!r}") from None
 
     def parse_bool(self, key: str, default: bool = False) -> bool:
         val = self.parse_string(key, "")
@@ -120,14 +120,10 @@ def _parse_tokens(tokens: list[str]) -> dict[str, list[str]]:
             key = tok[2:]
             table.setdefault(key, [])
         elif key is None:
-            raise MimicKitError(f"argument {_short(tok)!r} comes before any --key")
+            raise MimicKitError(f"argument {shorten(tok, 80)!r} comes before any --key")
         else:
             table[key].append(tok)
     return table
-
-
-def _short(text: str, limit: int = 80) -> str:
-    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _is_number(tok: str) -> bool:

@@ -144,6 +144,13 @@ def format_validation_error(e: ValidationError, model: type[BaseModel] | None = 
     return "; ".join(parts)
 
 
+def unknown_key(key: object, known: typing.Iterable[str], where: str = "") -> str:
+    """`unknown key 'k'{where} (did you mean 'n'?)`, the key cut to `MAX_ECHO_CHARS` and the hint
+    the nearest of `known`, when one is close."""
+    near = nearest_name(key, known) if isinstance(key, str) else None
+    return f"unknown key {_echo(key)}{where}" + (f" (did you mean '{near}'?)" if near else "")
+
+
 def nearest_name(name: str, known: typing.Iterable[str]) -> str | None:
     """The known name closest to `name` (difflib), or None when nothing is close."""
     close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)

@@ -4,5 +4,10 @@ The CLI prints its message as one line on stderr and exits non-zero, never a tra
 """
 
 
+def shorten(text: str, limit: int) -> str:
+    """`text` as an error quotes it: at most `limit` characters, then `...`."""
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 class MimicKitError(Exception):
     """A user-facing error; the message names the file, key or value at fault."""

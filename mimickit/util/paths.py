@@ -85,6 +85,27 @@ PROJECT_DATA = DataPaths()
 """The project's own data only: the default of every builder that is given no data folder."""
 
 
+SYSTEM_DIRS = (Path("/proc"), Path("/sys"), Path("/dev"))  # the kernel's and the devices' folders
+
+
+def check_output_file(path: str | Path, what: str = "--out") -> Path:
+    """`path` if a file may be written there, checked before the work that fills it: not inside a
+    system folder (`SYSTEM_DIRS`), not under a file, nothing but a regular file in its place;
+    MimicKitError (one line naming `what`) otherwise."""
+    from mimickit.util.errors import MimicKitError
+
+    p = Path(path)
+    shown = str(p)[:200]
+    folder = p.parent.resolve()
+    if any(folder == d or folder.is_relative_to(d) for d in SYSTEM_DIRS):
+        raise MimicKitError(f"{what} {shown}: not writing into {folder} (a system folder); choose another")
+    if folder.exists() and not folder.is_dir():
+        raise MimicKitError(f"{what} {shown}: {folder} is not a folder")
+    if p.exists() and not p.is_file():
+        raise MimicKitError(f"{what} {shown}: exists and is not a regular file")
+    return p
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write a file so that a reader sees either the old or the new content, never half of it."""
     path = Path(path)

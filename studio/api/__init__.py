@@ -1,17 +1,20 @@
-"""REST routers of the studio, one module per panel: library, scene, runs."""
+"""REST routers of the studio, one module per panel: library, scene, runs, evals, videos, the stream.
+A handler reaches the studio's services as a parameter `studio: StudioDep`."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Annotated
 
-from fastapi import HTTPException, Request
+from fastapi import Depends, HTTPException, Request
 
-if TYPE_CHECKING:
-    from studio.app import Studio
+from studio.services import Studio
 
 
 def studio_of(request: Request) -> Studio:
     return request.app.state.studio
+
+
+StudioDep = Annotated[Studio, Depends(studio_of)]
 
 
 def need(value: object, what: str) -> None:

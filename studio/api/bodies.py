@@ -51,7 +51,8 @@ class StrictBody(BaseModel):
             known = list(cls.model_fields)
             for key in data:
                 if key not in known:
-                    near = nearest_name(str(key), known)
+                    near = nearest_name(str(key)[:100], known)
                     hint = f"; did you mean {near!r}?" if near else f"; known keys: {', '.join(known)}"
-                    raise ValueError(f"unknown key {key!r}{hint}")
+                    shown = key if len(key) <= 60 else key[:60] + "..."  # never echo unbounded input
+                    raise ValueError(f"unknown key {shown!r}{hint}")
         return data

@@ -10,12 +10,12 @@ from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
 
-from mimickit.run_folder import ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, INT_MODELS_DIR
+from mimickit.learning.run_folder import ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, INT_MODELS_DIR
 from mimickit.util.errors import MimicKitError
 from studio.api import studio_of
 from studio.api.bodies import OneLineErrors
-from studio.checkpoints import check_fit_char, check_fit_env, configs_beside, inspect_checkpoint
-from studio.rollout import run_data_dir
+from studio.runs.checkpoints import check_fit_char, check_fit_env, configs_beside, inspect_checkpoint, job_file
+from studio.scene.rollout import run_data_dir, source_for_checkpoint
 from studio.security import confine, display_path
 
 router = APIRouter(prefix="/checkpoints", tags=["checkpoints"], route_class=OneLineErrors)
@@ -51,9 +51,27 @@ def list_checkpoints(request: Request) -> list[dict[str, Any]]:
             "run_id": run.id if run else None,
             "run_name": run.name if run else None,
             "has_configs": bool(configs_beside(f)),
+            "needs_data": _needs_data(f, s.data_dir),
         })  # fmt: skip
     out.sort(key=lambda c: c["mtime"], reverse=True)
     return out[:MAX_LISTED]
+
+
+def _needs_data(checkpoint: Path, data_dir: Path | None) -> str | None:
+    """The clip its configs play when the data folders lack it (a rollout or eval of it would fail)."""
+    try:
+        return source_for_checkpoint(checkpoint, fallback_data_dir=data_dir).missing_clip()
+    except MimicKitError:
+        return None  # no configs beside it: the pick of an arg file decides
+
+
+YAML = (".yaml", ".yml")
+
+
+def _input(given: str | None, what: str, suffixes: tuple[str, ...], roots: list[Path]) -> Path | None:
+    """A config or character to check the fit against: a file of its kind inside the folders (a folder
+    or the registry is one 400 line, not a fit that failed)."""
+    return job_file(confine(given, roots), given, what, suffixes) if given else None
 
 
 @router.get("/inspect")
@@ -75,9 +93,9 @@ def inspect(
     info["display_path"] = display_path(ckpt, s.data_dirs)
     fit = None
     target = env_config or char
-    env_file = confine(env_config, s.readable_roots) if env_config else None
-    char_file = confine(char, s.readable_roots) if char and not env_config else None
-    engine = confine(engine_config, s.readable_roots) if engine_config else None
+    env_file = _input(env_config, "env_config", YAML, s.readable_roots)
+    char_file = _input(char, "char", (".xml",), s.readable_roots) if not env_config else None
+    engine = _input(engine_config, "engine_config", YAML, s.readable_roots)
     try:
         if env_file is not None:
             beside = configs_beside(ckpt)

@@ -12,13 +12,14 @@ from typing import Any
 import yaml
 from fastapi import APIRouter, Query, Request
 
-from mimickit.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, EndState, RunFolder
+from mimickit.learning.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, EndState, RunFolder
 from studio.api import studio_of
 from studio.api.bodies import OneLineErrors
-from studio.runs import RunError
+from studio.runs.manager import RunError
 
 router = APIRouter(prefix="/compare", tags=["compare"], route_class=OneLineErrors)
 MAX_RUNS = 12
+MAX_ID_DIGITS = 30
 CONFIG_FILES = {"engine": ENGINE_CONFIG_FILE, "env": ENV_CONFIG_FILE, "agent": AGENT_CONFIG_FILE}
 # args.json fields that differ between any two runs and say nothing about how they train.
 NOT_SETTINGS = {"argv", "start_time", "start_time_utc", "previous_starts", "format", "effective.out_dir"}
@@ -43,7 +44,11 @@ def compare(request: Request, runs: str = Query(description="run ids, comma-sepa
 def _parse_ids(text: str) -> list[int]:
     parts = [p.strip() for p in text.split(",") if p.strip()]
     if not parts or not all(p.isdigit() for p in parts):
-        raise RunError(f"runs={text!r}: expected run ids separated by commas, e.g. 3,5", 422)
+        shown = text if len(text) <= 100 else text[:100] + "..."
+        raise RunError(f"runs={shown!r}: expected run ids separated by commas, e.g. 3,5", 422)
+    for p in parts:
+        if len(p) > MAX_ID_DIGITS:  # past any id (and past what int() reads): no such run
+            raise RunError(f"no run {p[:MAX_ID_DIGITS]}...", 404)
     ids = list(dict.fromkeys(int(p) for p in parts))
     if len(ids) > MAX_RUNS:
         raise RunError(f"runs: at most {MAX_RUNS} runs at once, got {len(ids)}", 422)

@@ -14,6 +14,7 @@ from mimickit.util.paths import atomic_write_bytes
 from studio.api import studio_of
 from studio.api.bodies import OneLineErrors
 from studio.api.runs import resolve_arg_file
+from studio.disk import disk_error
 from studio.parsing import read_motion_bytes
 from studio.security import PathError, confine
 
@@ -138,7 +139,13 @@ async def upload_motion(
     while target.exists():
         n += 1
         target = folder / f"{stem}_{n}.pkl"
-    atomic_write_bytes(target, data)  # the bytes as given: byte-compatible with MimicKit
+    try:
+        atomic_write_bytes(target, data)  # the bytes as given: byte-compatible with MimicKit
+    except OSError as e:  # a full or read-only disk: one line naming the upload (507 / 503), not its temp file
+        found = disk_error(e, target)
+        if found is None:
+            raise
+        raise found from e
     studio.library.invalidate()
     return {
         "path": str(target),

@@ -3,28 +3,31 @@ and the scene's state. The playback commands drive whichever is loaded (`mode`: 
 
 from __future__ import annotations
 
+import functools
+import os
 import re
 import time
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import FileResponse
 from pydantic import Field
 from starlette.concurrency import run_in_threadpool
 
 from mimickit.util.errors import MimicKitError
-from studio.api import need, studio_of
+from studio.api import StudioDep, need
 from studio.api.bodies import OneLineErrors, StrictBody
 from studio.api.library import character_path
-from studio.checkpoints import check_finite_checkpoint
-from studio.clip_pose import default_pose, pose_clip
+from studio.api.sources import checkpoint_of
 from studio.library import characters_tried, no_character_line
-from studio.playable import Playable
-from studio.player import Player
-from studio.rollout import RolloutPlayer, RolloutSource, source_for_checkpoint
-from studio.runs import CHECKPOINT
-from studio.security import confine
+from studio.runs.checkpoints import check_finite_checkpoint
+from studio.scene.clip_pose import default_pose, pose_clip
+from studio.scene.playable import Playable
+from studio.scene.player import Player
+from studio.scene.rollout import RolloutPlayer, RolloutSource, source_for_checkpoint
+from studio.security import confine, display_path, shown_path
+from studio.services import Studio
 
 router = APIRouter(prefix="/scene", tags=["scene"], route_class=OneLineErrors)
 
@@ -71,55 +74,46 @@ class Configure(StrictBody):
     follow: bool | None = Field(None, description="camera follows the character")
 
 
-def _player(request: Request) -> Player:
+def _player(studio: Studio) -> Player:
     """The clip player (for loading clips)."""
-    player = studio_of(request).player
+    player = studio.scene.player
     need(player, "the 3D scene")
     return player
 
 
-def _target(request: Request) -> Playable:
+def _target(studio: Studio) -> Playable:
     """What the playback commands drive: the rollout while one is loaded, else the clip player."""
-    target = studio_of(request).active()
+    target = studio.active()
     need(target, "the 3D scene")
     return target
 
 
-def _command(request: Request, fn: Any) -> dict[str, Any]:
-    """`fn(active playable)` as one scene command; the state after it."""
-    studio = studio_of(request)
-    need(studio.active(), "the 3D scene")
-    return studio.command(fn)
-
-
-def _rollout(request: Request) -> RolloutPlayer:
-    rp = studio_of(request).rollout
+def _rollout(studio: Studio) -> RolloutPlayer:
+    rp = studio.scene.rollout
     if rp is None:
         raise HTTPException(409, "no rollout is loaded (POST /api/scene/load_rollout)")
     return rp
 
 
 @router.post("/load_clip")
-def load_clip(body: LoadClip, request: Request) -> dict[str, Any]:
+def load_clip(body: LoadClip, studio: StudioDep) -> dict[str, Any]:
     """Pose the clip on its character and show frame 0 (the character is rebuilt only if it changes)."""
-    studio = studio_of(request)
-    player = _player(request)
+    player = _player(studio)
     clip = confine(body.path, studio.settings.readable_roots)
     pose = pose_clip(clip, _char_for(studio, body.path, clip, body.char))
     return _show_clip(studio, player, pose, play=body.play)
 
 
 @router.post("/show_character")
-def show_character(body: ShowCharacter, request: Request) -> dict[str, Any]:
+def show_character(body: ShowCharacter, studio: StudioDep) -> dict[str, Any]:
     """Show a character in its default pose (every DoF 0, standing on the ground) as a one-frame clip
     (`clip` and `char` in the state are the MJCF); its bodies and joints: `GET /api/characters/pose`."""
-    studio = studio_of(request)
-    player = _player(request)
+    player = _player(studio)
     pose = default_pose(character_path(studio, body.path))
     return _show_clip(studio, player, pose, play=False)
 
 
-def _show_clip(studio: Any, player: Player, pose: Any, *, play: bool) -> dict[str, Any]:
+def _show_clip(studio: Studio, player: Player, pose: Any, *, play: bool) -> dict[str, Any]:
     """End any rollout and load `pose` in one scene command (nothing runs between); the state."""
 
     def show() -> dict[str, Any]:
@@ -127,24 +121,23 @@ def _show_clip(studio: Any, player: Player, pose: Any, *, play: bool) -> dict[st
         player.load(pose, play=play)
         return player.snapshot()
 
-    return studio.scene_thread.call(show)
+    return studio.scene.thread.call(show)
 
 
 @router.post("/load_rollout")
-def load_rollout(body: LoadRollout, request: Request) -> dict[str, Any]:
+def load_rollout(body: LoadRollout, studio: StudioDep) -> dict[str, Any]:
     """Roll out a run's checkpoint (`run_id`) or a checkpoint file: its deterministic policy in one
     MuJoCo env built from the run's copied configs, stepped at the control rate, with the reference
     clip as a ghost. 400 with one message when the checkpoint does not fit (another character or
     observation size) or is not a checkpoint. The rollout reloads the file when it changes."""
-    studio = studio_of(request)
     if (body.run_id is None) == (body.checkpoint is None):
         raise HTTPException(422, "give either `run_id` or `checkpoint`")
     if body.b_run_id is not None and body.b_checkpoint is not None:
         raise HTTPException(422, "give at most one of `b_run_id` and `b_checkpoint`")
-    checkpoint, run_name = _checkpoint_of(studio, body.run_id, body.checkpoint)
+    checkpoint, run_name = checkpoint_of(studio, body.run_id, body.checkpoint)
     partner = None
     if body.b_run_id is not None or body.b_checkpoint is not None:
-        b_path, b_name = _checkpoint_of(studio, body.b_run_id, body.b_checkpoint)
+        b_path, b_name = checkpoint_of(studio, body.b_run_id, body.b_checkpoint)
         partner = (b_path, body.b_run_id, b_name)
     roots = studio.settings.readable_roots
     configs = {
@@ -154,20 +147,8 @@ def load_rollout(body: LoadRollout, request: Request) -> dict[str, Any]:
     return roll_out(studio, checkpoint, configs, play=body.play, run_id=body.run_id, run_name=run_name, partner=partner)
 
 
-def _checkpoint_of(studio: Any, run_id: int | None, checkpoint: str | None) -> tuple[Path, str | None]:
-    """The checkpoint file of a run (its `model.pt`) or a confined path, and the run's name."""
-    s = studio.settings
-    if run_id is None:
-        return confine(checkpoint, [*s.data_dirs, s.runs_dir]), None
-    run = studio.runs.get(run_id)  # 404 when there is no such run
-    path = Path(run.out_dir) / CHECKPOINT
-    if not path.is_file():
-        raise HTTPException(400, f"run {run.id} has no checkpoint yet ({CHECKPOINT} appears after its first iteration)")
-    return path, run.name
-
-
 def roll_out(
-    studio: Any,
+    studio: Studio,
     checkpoint: Path,
     configs: dict[str, Path | None],
     *,
@@ -193,13 +174,13 @@ def roll_out(
 
 @router.get("/rollout/history")
 def rollout_history(
-    request: Request,
+    studio: StudioDep,
     since: int = Query(-1, description="only steps after this one"),
     limit: int = Query(2000, gt=0, le=10000),
 ) -> dict[str, Any]:
     """The loaded rollout's recorded steps: reward and each unweighted reward term per step (the
     last 60 s are kept), for plotting; poll with `since` = the last step received."""
-    rp = _rollout(request)
+    rp = _rollout(studio)
     snap = rp.snapshot()["rollout"]
     return {
         "step": snap["step"],
@@ -209,65 +190,64 @@ def rollout_history(
 
 
 @router.post("/rollout/reset")
-def rollout_reset(request: Request) -> dict[str, Any]:
+def rollout_reset(studio: StudioDep) -> dict[str, Any]:
     """Start a new episode of the loaded rollout now."""
-    rp = _rollout(request)
+    rp = _rollout(studio)
     rp.reset()
     return rp.snapshot()
 
 
 @router.post("/rollout/close")
-def rollout_close(request: Request) -> dict[str, Any]:
+def rollout_close(studio: StudioDep) -> dict[str, Any]:
     """Stop the rollout and go back to the clip player (empty until a clip is loaded)."""
-    studio = studio_of(request)
     studio.end_rollout()
     target = studio.active()
     return target.snapshot() if target else {"mode": "clip"}
 
 
 @router.post("/play")
-def play(request: Request) -> dict[str, Any]:
-    return _command(request, lambda t: t.play())
+def play(studio: StudioDep) -> dict[str, Any]:
+    return studio.command(lambda t: t.play())
 
 
 @router.post("/pause")
-def pause(request: Request) -> dict[str, Any]:
-    return _command(request, lambda t: t.pause())
+def pause(studio: StudioDep) -> dict[str, Any]:
+    return studio.command(lambda t: t.pause())
 
 
 @router.post("/toggle")
-def toggle(request: Request) -> dict[str, Any]:
+def toggle(studio: StudioDep) -> dict[str, Any]:
     """Play/pause, as the Enter key."""
-    return _command(request, lambda t: t.toggle())
+    return studio.command(lambda t: t.toggle())
 
 
 @router.post("/step")
-def step(request: Request, body: Step | None = None) -> dict[str, Any]:
+def step(studio: StudioDep, body: Step | None = None) -> dict[str, Any]:
     """Pause and move by `frames` (default 1, as the Space key)."""
     frames = (body or Step()).frames
-    return _command(request, lambda t: t.step(frames))
+    return studio.command(lambda t: t.step(frames))
 
 
 @router.post("/seek")
-def seek(body: Seek, request: Request) -> dict[str, Any]:
+def seek(body: Seek, studio: StudioDep) -> dict[str, Any]:
     if body.frame is None and body.time is None:
         raise HTTPException(422, "give `frame` or `time`")
-    return _command(request, lambda t: t.seek(frame=body.frame, time_s=body.time))
+    return studio.command(lambda t: t.seek(frame=body.frame, time_s=body.time))
 
 
 @router.post("/configure")
-def configure(body: Configure, request: Request) -> dict[str, Any]:
+def configure(body: Configure, studio: StudioDep) -> dict[str, Any]:
     """Speed, loop and camera follow."""
-    return _command(request, lambda t: t.configure(speed=body.speed, loop=body.loop, follow=body.follow))
+    return studio.command(lambda t: t.configure(speed=body.speed, loop=body.loop, follow=body.follow))
 
 
 @router.get("/state")
-async def state(request: Request) -> dict[str, Any]:
+async def state(studio: StudioDep) -> dict[str, Any]:
     """`mode` (clip or rollout), frame, num_frames, time, playing, speed, loop, follow, scene updates
     sent and the drawn root position. Clip mode: clip, character and which feet touch the ground.
     Rollout mode: `rollout` with the checkpoint and its mtime, reloads, the step, the episode and its
     return, the last reward and reward terms, and the frame shown (the timeline is the history)."""
-    target = _target(request)
+    target = _target(studio)
     # What the scene thread published after its last change: read on the event loop, never waiting
     # for a draw (a worker thread per request was most of this endpoint's cost under 50 clients).
     snap = target.published()
@@ -279,46 +259,73 @@ _REPLAY_NAME = re.compile(r"^[A-Za-z0-9._-]+\.html$")
 
 
 @router.post("/export_replay")
-def export_replay(body: ExportReplay, request: Request) -> dict[str, Any]:
+def export_replay(body: ExportReplay, studio: StudioDep) -> dict[str, Any]:
     """Write a standalone HTML replay (one file, plays offline from `file://`) of a clip, or of what
     the scene shows: the loaded clip, or the rollout's recorded timeline (the last 60 s). The file goes
-    to `<runs-dir>/replays/`; `download` is its URL."""
-    from studio import replay  # viser's serializer: only when asked
+    to `<runs-dir>/replays/` under a name of its own; `download` is its URL. 409 when that folder holds
+    `replay_quota_bytes` already."""
+    from studio.scene import replay  # viser's serializer: only when asked
 
-    studio = studio_of(request)
-    out_dir = studio.settings.runs_dir / REPLAYS_DIR
-    stamp = time.strftime("%Y%m%d-%H%M%S")
     if body.path is not None:
         clip = confine(body.path, studio.settings.readable_roots)
         char = _char_for(studio, body.path, clip, body.char)
-        out = out_dir / f"{_safe_stem(clip.stem)}-{stamp}.html"
-        info = replay.export_clip_replay(clip, char, out, follow=body.follow)
-    elif studio.rollout is not None:
-        name = studio.rollout.rollout.source.run_name or studio.rollout.rollout.source.checkpoint.stem
-        out = out_dir / f"rollout-{_safe_stem(name)}-{stamp}.html"
-        info = replay.export_player_rollout(studio.rollout, out, follow=body.follow)
-    elif studio.player is not None and studio.player.pose is not None:
-        pose = studio.player.pose
-        out = out_dir / f"{_safe_stem(pose.path.stem)}-{stamp}.html"
-        info = replay.write_clip_replay(pose, out, follow=body.follow)
+        stem, write = clip.stem, functools.partial(replay.export_clip_replay, clip, char, follow=body.follow)
+    elif studio.scene.rollout is not None:
+        rp, source = studio.scene.rollout, studio.scene.rollout.rollout.source
+        stem = "rollout-" + (source.run_name or source.checkpoint.stem)
+        write = functools.partial(replay.export_player_rollout, rp, follow=body.follow)
+    elif studio.scene.player is not None and studio.scene.player.pose is not None:
+        pose = studio.scene.player.pose
+        stem, write = pose.path.stem, functools.partial(replay.write_clip_replay, pose, follow=body.follow)
     else:
         raise HTTPException(409, "nothing to export: load a clip or a rollout, or give `path`")
+    out = _new_replay_file(studio.settings.runs_dir / REPLAYS_DIR, stem, studio.settings.replay_quota_bytes)
+    try:
+        info = write(out)
+    except BaseException:
+        out.unlink(missing_ok=True)  # the name reserved for it
+        raise
     return {**info.to_json(), "download": f"/api/scene/replays/{out.name}"}
 
 
+def _new_replay_file(folder: Path, stem: str, quota_bytes: int) -> Path:
+    """A name of its own in `folder`, reserved by creating the file empty (exclusive, not following a
+    link: two exports in one second, or a planted symlink, never share it), once the folder's quota is
+    checked."""
+    folder.mkdir(parents=True, exist_ok=True)
+    if folder.is_symlink():
+        raise HTTPException(409, f"{folder} is a symlink; replays are written only into a real folder")
+    used = sum(e.stat(follow_symlinks=False).st_size for e in os.scandir(folder))
+    if used >= quota_bytes:
+        raise HTTPException(
+            409,
+            f"{folder} holds {used / 1e6:.0f} MB of replays, its quota is {quota_bytes / 1e6:.0f} MB "
+            "(replay_quota_bytes): delete old replays there first",
+        )
+    base = f"{_safe_stem(stem)}-{time.strftime('%Y%m%d-%H%M%S')}"
+    for n in range(1, 1000):
+        out = folder / (f"{base}.html" if n == 1 else f"{base}-{n}.html")
+        try:
+            os.close(os.open(out, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644))
+        except FileExistsError:
+            continue
+        return out
+    raise HTTPException(409, f"{folder}: too many replays named {base}*.html")
+
+
 @router.get("/replays/{name}")
-def download_replay(name: str, request: Request) -> FileResponse:
+def download_replay(name: str, studio: StudioDep) -> FileResponse:
     """A replay written by `export_replay`, as a download."""
-    folder = studio_of(request).settings.runs_dir / REPLAYS_DIR
+    folder = studio.settings.runs_dir / REPLAYS_DIR
     if not _REPLAY_NAME.match(name) or not (folder / name).is_file():
-        raise HTTPException(404, f"no replay named {name!r}")
+        raise HTTPException(404, f"no replay named {shown_path(name)!r}")
     # A symlink placed in the replays folder must not lead out of it.
     path = confine(str(folder / name), [folder])
     return FileResponse(path, media_type="text/html", filename=name)
 
 
 def _source(
-    studio: Any,
+    studio: Studio,
     checkpoint: Path,
     configs: dict[str, Path | None],
     run_id: int | None,
@@ -327,18 +334,25 @@ def _source(
 ) -> RolloutSource:
     """What to build a rollout of `checkpoint` from; an A/B side's error (`side` "A" or "B") says which."""
     try:
-        source = source_for_checkpoint(checkpoint, run_id=run_id, run_name=run_name, **configs)
+        source = source_for_checkpoint(
+            checkpoint, run_id=run_id, run_name=run_name, fallback_data_dir=studio.settings.data_dir, **configs
+        )
         check_finite_checkpoint(checkpoint)  # unreadable or diverged (NaN weights): one line, before any build
     except MimicKitError as e:
         if not side:
             raise
         raise MimicKitError(f"{side}: {e}") from None
-    if source.data_dir is None:
-        source.data_dir = studio.settings.data_dir
+    if missing := source.missing_clip():
+        where = f"not in {source.data_dir}" if source.data_dir else "not shipped with the project"
+        prefix = f"{side}: " if side else ""
+        raise MimicKitError(
+            f"{prefix}{display_path(checkpoint, studio.settings.data_dirs)} plays {missing}, which is {where}:"
+            " start the studio with --data-dir pointing at MimicKit's data folder"
+        )
     return source
 
 
-def _char_for(studio: Any, shown: str, clip: Path, char: str | None) -> Path:
+def _char_for(studio: Studio, shown: str, clip: Path, char: str | None) -> Path:
     """`char` (confined), else the character whose DoF count fits the clip."""
     roots = studio.settings.readable_roots
     if char is not None:

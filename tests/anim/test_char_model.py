@@ -11,35 +11,37 @@ import torch
 from mimickit.anim.kin_char_model import JointType
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.mjcf_loader import load_mjcf_model
+from mimickit.envs.env_builder import load_env_configs
 from mimickit.util import torch_util as tu
 from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import PROJECT_DATA_DIR
 from tests.conftest import PROJECT_HUMANOID
-
-HUMANOID_BODIES = [
-    "pelvis", "torso", "head", "right_upper_arm", "right_lower_arm", "right_hand", "left_upper_arm",
-    "left_lower_arm", "left_hand", "right_thigh", "right_shin", "right_foot", "left_thigh", "left_shin", "left_foot",
-]  # fmt: skip
 
 
 def test_project_humanoid_layout():
+    """Checked against MuJoCo's own compile of the same MJCF: every joint of humanoid.xml below the free
+    root is a one-DoF hinge (a spherical joint is three), so MuJoCo's joint k is our DoF k - 1."""
     c = load_char_model(PROJECT_HUMANOID)
-    assert c.get_body_names() == HUMANOID_BODIES
-    assert c.get_dof_size() == 28 and c.get_num_joints() == 15
+    m = mujoco.MjModel.from_xml_path(str(PROJECT_HUMANOID))
+    assert c.get_body_names() == [m.body(i).name for i in range(1, m.nbody)]  # body 0 is MuJoCo's world
+    assert c.get_dof_size() == m.nv - 6 and c.get_num_joints() == m.nbody - 1
     types = [j.type for j in c.joints[1:]]
+    # The spec's count (MIMICKIT_SPEC.md §8.1: "12 actuated joints (8 spherical, 4 hinge)", 2 fixed hands).
     assert types.count(JointType.SPHERICAL) == 8 and types.count(JointType.HINGE) == 4
     assert types.count(JointType.FIXED) == 2
-    assert [c.get_joint_dof_idx(c.get_body_id(b)) for b in ("right_lower_arm", "left_upper_arm", "left_foot")] == [
-        9,
-        10,
-        25,
-    ]
-    assert c.get_total_mass() == pytest.approx(50.05, rel=0.02)
+    for body in ("right_lower_arm", "left_upper_arm", "left_foot"):  # a hinge, a ball after a hinge, the last
+        b = m.body(body).id
+        assert c.get_joint_dof_idx(c.get_body_id(body)) == m.jnt_dofadr[m.body_jntadr[b]] - 6, body
+    assert c.get_total_mass() == pytest.approx(float(m.body_mass.sum()), rel=1e-6)  # 50.05 kg, §8.1
     low, high = c.dof_limits()
-    assert low[9] == pytest.approx(0.0) and high[9] == pytest.approx(2.7925)
-    np.testing.assert_allclose(c.dof_array("kp")[:3], [1000, 1000, 1000])
-    np.testing.assert_allclose(c.dof_array("torque_limit")[17], 150)
+    np.testing.assert_allclose(low, m.jnt_range[1:, 0])
+    np.testing.assert_allclose(high, m.jnt_range[1:, 1])
+    np.testing.assert_allclose(c.dof_array("kp"), m.jnt_stiffness[1:])
+    np.testing.assert_allclose(c.dof_array("torque_limit"), m.jnt_actfrcrange[1:, 1])
 
 
+# Bodies and DoFs of each character: MIMICKIT_SPEC.md §8.1 (humanoid: 15 bodies, D = 28) and §8.2's table
+# (SMPL 24 / 69, G1 31 / 29, Go2 17 / 12); MuJoCo cannot check them here, Go2's meshes are not shipped.
 @pytest.mark.parametrize(
     "asset, bodies, dofs",
     [("humanoid/humanoid.xml", 15, 28), ("smpl/smpl.xml", 24, 69), ("g1/g1.xml", 31, 29), ("go2/go2.xml", 17, 12)],
@@ -139,12 +141,16 @@ def test_project_humanoid_matches_mimickit_humanoid(ref_humanoid_xml):
 
 
 def test_init_pose_feet_on_ground():
+    """The shipped env's init pose (root at 0.882416 m, arms down: MIMICKIT_SPEC.md §5.2) stands on its feet."""
     from mimickit.anim.char_geometry import body_surface_points, lowest_point_z
 
     c = load_char_model(PROJECT_HUMANOID)
-    dof = torch.zeros(1, 28)
-    dof[0, 6], dof[0, 10] = 1.5708, -1.5708
-    pos, rot = c.forward_kinematics(torch.tensor([[0, 0, 0.882416]]), tu.quat_identity((1,)), c.dof_to_rot(dof))
+    env_cfg, _ = load_env_configs(
+        PROJECT_DATA_DIR / "envs/deepmimic_humanoid_env.yaml", PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
+    )
+    pose = torch.tensor([env_cfg.init_pose], dtype=torch.float32)  # root pos 3, root exp-map 3, DoFs
+    assert not pose[0, 3:6].any()  # an upright root: its rotation is the identity below
+    pos, rot = c.forward_kinematics(pose[:, :3], tu.quat_identity((1,)), c.dof_to_rot(pose[:, 6:]))
     ids, pts = body_surface_points(c, ["right_foot", "left_foot"])
     assert abs(lowest_point_z(c, ids, pts, pos, rot).item()) < 0.005
 

@@ -67,6 +67,7 @@ def test_nan_columns_become_zero_with_warning(test_data):
 
 def test_torch_scalar_fps_decoded_without_torch_code(test_data):
     m = load_motion(test_data / "motions/humanoid/humanoid_double_kong.pkl")
+    # The file's own values (read once with torch and pickle.load: fps tensor(30.), 156 frames, loop_mode 0).
     assert m.fps == 30.0 and m.num_frames == 156 and m.loop_mode == LoopMode.CLAMP
 
 

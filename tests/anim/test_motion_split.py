@@ -103,7 +103,7 @@ def test_clips_in_memory_are_never_split(char):
     demo = load_motion(DEMO_CLIP)
     lib = MotionLib([demo, demo, demo], char, weights=[1.0, 1.0, 2.0], proc=(1, 3))
     assert lib.num_motions() == 3
-    torch.testing.assert_close(lib.get_motion_weights(), torch.tensor([0.25, 0.25, 0.5]))
+    torch.testing.assert_close(lib.get_motion_weights(), torch.tensor([0.25, 0.25, 0.5]))  # 1, 1, 2 over 4
 
 
 @pytest.mark.integration

@@ -20,8 +20,8 @@ from mimickit.anim.mjcf_loader import load_mjcf_model
 from mimickit.envs.add_env import ADDEnv
 from mimickit.envs.amp_env import AMPEnv
 from mimickit.envs.char_env import CharEnv
-from mimickit.envs.env_builder import build_env
-from mimickit.envs.env_config import CharEnvConfig, load_env_configs
+from mimickit.envs.env_builder import build_env, load_env_configs
+from mimickit.envs.env_config import CharEnvConfig
 from mimickit.envs.view_motion_env import ViewMotionEnv
 from mimickit.learning.agent_builder import build_agent
 from mimickit.util import torch_util as tu

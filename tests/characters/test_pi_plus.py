@@ -16,8 +16,7 @@ import torch
 
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.mjcf_loader import load_mjcf_model
-from mimickit.envs.env_builder import build_env
-from mimickit.envs.env_config import load_env_configs
+from mimickit.envs.env_builder import build_env, load_env_configs
 from mimickit.envs.view_motion_env import ViewMotionEnv
 from mimickit.learning.agent_builder import build_agent
 from mimickit.util.arg_parser import ArgParser

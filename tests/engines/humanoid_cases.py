@@ -8,13 +8,16 @@ import torch
 
 from mimickit.engines.engine import Engine
 
+# The humanoid's init pose (MIMICKIT_SPEC.md §5.2, the init_pose of data/envs/*humanoid*_env.yaml): the root
+# at 0.882416 m, where the feet's boxes touch z = 0 (tests/anim/test_char_model.py checks that).
+INIT_ROOT_POS = (0.0, 0.0, 0.882416)
 HANGING = {"fix_root": True, "start_pos": (0.0, 0.0, 1.5)}  # create_obj kwargs: a fixed root in the air
 # pd_explicit's explicit damping needs kd·dt/M < 2: 1920 Hz on the humanoid (its ankles reach 14.6 at 240 Hz)
 PD_EXPLICIT_FREQ = 1920
 
 
 def init_dof(n: int = 1) -> torch.Tensor:
-    """[n, 28] the standing init pose: arms down, everything else zero."""
+    """[n, 28] the standing init pose (§5.2): shoulders' x at ±π/2 (arms down), everything else zero."""
     dof = torch.zeros(n, 28)
     dof[:, 6], dof[:, 10] = 1.5708, -1.5708
     return dof

@@ -19,6 +19,7 @@ from mimickit.engines.mujoco_engine import MujocoEngine
 from tests.conftest import PROJECT_HUMANOID
 from tests.engines.humanoid_cases import (
     HANGING,
+    INIT_ROOT_POS,
     PD_EXPLICIT_FREQ,
     ball_target,
     final_dofs_by_mode,
@@ -26,8 +27,8 @@ from tests.engines.humanoid_cases import (
     random_pd_state,
 )
 
-INIT_ROOT_POS = (0.0, 0.0, 0.882416)
-# DoF columns of two ball joints and their cones (largest |bound| of their hinge ranges)
+# DoF columns of two ball joints and their cones (largest |bound| of their hinge ranges) and torque limits,
+# from MIMICKIT_SPEC.md §8.1: neck_y [−.6981, 1.0472], ±50; abdomen_y [−1.0472, 1.5708], ±200.
 NECK, ABDOMEN = slice(3, 6), slice(0, 3)
 CONES = {"neck": (NECK, 1.0472, 50.0), "abdomen": (ABDOMEN, 1.5708, 200.0)}  # (columns, cone, torque limit)
 

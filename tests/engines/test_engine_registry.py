@@ -1,6 +1,7 @@
 """The engine registry (`ENGINES`): every name validates its config class from the shipped engine yaml
 and resolves its engine class, Newton only where its optional extra is installed (elsewhere one error
-line saying how to install it); an unknown name is one error line naming the nearest."""
+line saying how to install it); an unknown name is one error line naming the nearest. What is checked is
+derived from the registry (tests/util/registry_checks.py): a new engine is checked without editing this."""
 
 from __future__ import annotations
 
@@ -14,14 +15,18 @@ from mimickit.engines.engine_builder import build_engine
 from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
+from tests.util.registry_checks import shipped_yamls, supported_list, undocumented
 
 HAS_NEWTON = importlib.util.find_spec("newton") is not None
 
 
-def test_the_engine_names_are_registered_each_with_a_shipped_yaml():
-    assert ENGINES.names == ("mujoco", "newton")
+def test_every_engine_has_its_shipped_yaml_and_is_documented():
+    """Each registered name has data/engines/<name>_engine.yaml, each shipped engine yaml names a registered
+    engine, and the docs mention every one."""
     for name in ENGINES.names:
         assert load_yaml(PROJECT_DATA_DIR / "engines" / f"{name}_engine.yaml")["engine_name"] == name
+    assert set(shipped_yamls("engines", "engine_name")) <= set(ENGINES.names)
+    assert not undocumented(ENGINES.names)
 
 
 @pytest.mark.parametrize("name", ENGINES.names)
@@ -48,9 +53,9 @@ def test_the_builder_builds_the_registered_class():
 @pytest.mark.parametrize(
     "name, needle",
     [
-        ("mujoko", "engine 'mujoko' is not supported; supported engines: mujoco, newton (did you mean 'mujoco'?)"),
+        ("mujoko", f"engine 'mujoko' is not supported; {supported_list(ENGINES)} (did you mean 'mujoco'?)"),
         ("isaac_lab", "engine 'isaac_lab' is not supported (Isaac Gym / Isaac Lab are not part of this port)"),
-        ("physx", "engine 'physx' is not supported; supported engines: mujoco, newton (got 'physx')"),
+        ("physx", f"engine 'physx' is not supported; {supported_list(ENGINES)} (got 'physx')"),
     ],
 )
 def test_an_unknown_engine_name_is_one_line_naming_the_nearest(name, needle):

@@ -21,9 +21,8 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
 from tests import conftest
 from tests.conftest import PROJECT_HUMANOID
-from tests.engines.humanoid_cases import init_dof
+from tests.engines.humanoid_cases import INIT_ROOT_POS, init_dof
 
-INIT_ROOT_POS = (0.0, 0.0, 0.882416)
 R_SHOULDER, L_SHOULDER = slice(6, 9), slice(10, 13)  # exp-map columns in the humanoid DoF layout
 
 
@@ -407,7 +406,12 @@ def test_visual_ghost_neither_collides_nor_falls(humanoid_xml):
         humanoid_xml,
         objs=(
             {},
-            {"is_visual": True, "disable_motors": True, "color": (0.2, 0.6, 1.0), "start_pos": (0.3, 0, 0.882416)},
+            {
+                "is_visual": True,
+                "disable_motors": True,
+                "color": (0.2, 0.6, 1.0),
+                "start_pos": (0.3, 0, INIT_ROOT_POS[2]),
+            },
         ),
     )
     assert engine.get_objs_per_env() == 2

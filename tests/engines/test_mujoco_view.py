@@ -1,6 +1,6 @@
 """`Engine.mujoco_view`, what viewers draw from, on both engines: each object's body ids (by obj_id) are
 that object's bodies, posed as the engine's getters say, in every env, with pending setter edits applied;
-`raw_rollout`, the bench's baseline, exists for the MuJoCo engine only.
+`bench_util.raw_rollout`, the bench's baseline, exists for the MuJoCo engine only.
 
 The Newton cases run where the optional extra is installed (`make test-newton`)."""
 
@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from mimickit.engines.bench_util import raw_rollout
 from mimickit.envs.char_env import CharEnv
 from mimickit.envs.env_builder import build_env
 from mimickit.util.errors import MimicKitError
@@ -109,7 +110,7 @@ def test_view_of_an_env_that_does_not_exist(env: CharEnv) -> None:
 
 
 def test_raw_rollout_is_the_mujoco_engines_own(env: CharEnv) -> None:
-    raw = env.engine.raw_rollout()
+    raw = raw_rollout(env.engine)
     if env.engine.get_name() == "newton":
         assert raw is None  # the bench reports env figures only
         return

@@ -20,8 +20,8 @@ from mimickit.anim.mjcf_char_model import load_char_model  # noqa: E402
 from mimickit.engines.engine import Engine, EngineConfig, ObjType  # noqa: E402
 from mimickit.engines.engine_builder import build_engine  # noqa: E402
 from mimickit.envs.char_env import CharEnv  # noqa: E402
-from mimickit.envs.env_builder import build_env  # noqa: E402
-from mimickit.envs.env_config import CharEnvConfig, load_env_configs  # noqa: E402
+from mimickit.envs.env_builder import build_env, load_env_configs  # noqa: E402
+from mimickit.envs.env_config import CharEnvConfig  # noqa: E402
 from mimickit.learning.agent_builder import build_agent  # noqa: E402
 from mimickit.util import torch_util as tu  # noqa: E402
 from mimickit.util.arg_parser import ArgParser  # noqa: E402
@@ -31,6 +31,7 @@ from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT, DataPaths  # noq
 from tests import conftest  # noqa: E402
 from tests.engines.humanoid_cases import (  # noqa: E402
     HANGING,
+    INIT_ROOT_POS,
     PD_EXPLICIT_FREQ,
     ball_target,
     final_dofs_by_mode,
@@ -45,7 +46,6 @@ VIEW = PROJECT_DATA_DIR / "envs/view_motion_humanoid_env.yaml"
 AGENT = PROJECT_DATA_DIR / "agents/deepmimic_humanoid_ppo_agent.yaml"
 DEMO_CLIP = PROJECT_DATA_DIR / "motions/humanoid_demo_squat.pkl"
 DEMO_ARGS = PROJECT_ROOT / "args/deepmimic_humanoid_demo_ppo_args.txt"
-INIT_ROOT_POS = (0.0, 0.0, 0.882416)
 
 
 def make_engine(num_envs: int = 1, mode: str = "pos", asset: Path = HUMANOID, engine_name: str = "newton",
@@ -164,7 +164,8 @@ def test_pd_explicit_drives_a_hinge_on_a_fixed_base(tmp_path: Path):
 
 
 # ---------------------------------------------------------------------------------------------- ball joints
-NECK, NECK_CONE = slice(3, 6), 1.0472  # the neck's exp-map columns; its cone = largest |bound| of its hinges
+# The neck's exp-map columns; its cone = the largest |bound| of its hinges (§8.1: neck_y [−.6981, 1.0472]).
+NECK, NECK_CONE = slice(3, 6), 1.0472
 
 
 @pytest.mark.parametrize("limits", ["cone", "none"])

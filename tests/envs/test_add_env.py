@@ -13,8 +13,7 @@ import torch
 from mimickit.anim.motion import LoopMode, load_motion, save_motion
 from mimickit.envs.add_env import ADDEnv, compute_add_disc_obs
 from mimickit.envs.base_env import DoneFlags, EnvMode
-from mimickit.envs.env_builder import build_env
-from mimickit.envs.env_config import load_env_configs
+from mimickit.envs.env_builder import build_env, load_env_configs
 from mimickit.util import torch_util as tu
 from mimickit.util.paths import PROJECT_DATA_DIR
 
@@ -58,7 +57,8 @@ def test_build_env_from_the_yaml_sizes(tmp_path: Path):
     yaml.write_text(ADD.read_text().replace("data/motions/humanoid/humanoid_walk.pkl", str(DEMO_CLIP)))
     env = build_env(yaml, ENGINE, 3)
     assert isinstance(env, ADDEnv)
-    assert env.get_obs_space().shape == (464,) and env.get_action_space().shape == (28,)
+    assert env.get_obs_space().shape == (464,) and env.get_action_space().shape == (28,)  # MIMICKIT_SPEC.md §5.3
+    # §5.6: root pos 3 + root rot 6 + 14 joints × 6 + 15 bodies × 3 + root vel 3 + ang vel 3 + DoF vel 28 = 172.
     assert env.get_disc_obs_space().shape == (172,) and env.get_num_disc_obs_steps() == 1
     _, info = env.reset()
     assert info["disc_obs"].shape == (3, 172) and info["disc_obs_demo"].shape == (3, 172)

@@ -10,8 +10,8 @@ from mimickit.anim.motion import LoopMode, load_motion, save_motion
 from mimickit.envs.amp_env import AMPEnv
 from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.deepmimic_env import DeepMimicEnv
-from mimickit.envs.env_builder import build_env
-from mimickit.envs.env_config import DeepMimicEnvConfig, load_env_configs
+from mimickit.envs.env_builder import build_env, load_env_configs
+from mimickit.envs.env_config import DeepMimicEnvConfig
 from mimickit.util.paths import PROJECT_DATA_DIR
 
 ENGINE = PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
@@ -45,7 +45,9 @@ def disc_step_parts(disc_obs: torch.Tensor, step: int) -> dict[str, torch.Tensor
 def test_disc_obs_size_is_1420_and_info_holds_the_buffer():
     env = build_env(AMP, ENGINE, 4)
     assert isinstance(env, AMPEnv)
-    assert env.get_obs_space().shape == (140,) and env.get_action_space().shape == (28,)
+    assert env.get_obs_space().shape == (140,) and env.get_action_space().shape == (28,)  # MIMICKIT_SPEC.md §5.2
+    # §5.4: (root pos 3 + root rot 6 + 14 joints × 6 + 5 key bodies × 3 + root vel 3 + ang vel 3 + DoF vel 28)
+    # = 142 per step × 10 steps (the yaml's num_disc_obs_steps) = 1420.
     assert env.get_disc_obs_space().shape == (1420,) and env.get_num_disc_obs_steps() == 10
     _, info = env.reset()
     assert info["disc_obs"].shape == (4, 1420)

@@ -12,8 +12,8 @@ import torch
 
 from mimickit.envs.amp_env import AMPEnv
 from mimickit.envs.base_env import DoneFlags
-from mimickit.envs.env_builder import build_env_from_configs
-from mimickit.envs.env_config import TaskLocationEnvConfig, TaskSteeringEnvConfig, load_env_configs
+from mimickit.envs.env_builder import build_env_from_configs, load_env_configs
+from mimickit.envs.env_config import TaskLocationEnvConfig, TaskSteeringEnvConfig
 from mimickit.envs.task_env import AMPTaskEnv, heading_dir
 from mimickit.envs.task_location_env import TaskLocationEnv, location_reward
 from mimickit.envs.task_steering_env import TaskSteeringEnv, steering_reward
@@ -46,6 +46,7 @@ def test_configs_builder_and_task_obs_sizes():
     loc_cfg, _ = load_env_configs(LOCATION, ENGINE)
     steer_cfg, _ = load_env_configs(STEERING, ENGINE)
     assert isinstance(loc_cfg, TaskLocationEnvConfig) and isinstance(steer_cfg, TaskSteeringEnvConfig)
+    # The values written in data/envs/amp_location_humanoid_env.yaml and amp_steering_humanoid_env.yaml.
     assert (loc_cfg.episode_length, loc_cfg.tar_speed, loc_cfg.tar_dist_max) == (20.0, 1.0, 10.0)
     assert (steer_cfg.tar_speed_min, steer_cfg.tar_speed_max, steer_cfg.rand_face_dir) == (0.5, 5.0, False)
     loc, steer = make(LOCATION), make(STEERING)
@@ -53,7 +54,7 @@ def test_configs_builder_and_task_obs_sizes():
     assert isinstance(loc, AMPEnv), "task envs are AMP envs: same disc obs"
     # The AMP humanoid obs (140) + 2 (target xy) / + 5 (direction, speed, facing).
     assert loc.get_obs_space().shape == (142,) and steer.get_obs_space().shape == (145,)
-    assert loc.get_disc_obs_space().shape == (1420,) and steer.get_disc_obs_space().shape == (1420,)
+    assert loc.get_disc_obs_space().shape == (1420,) and steer.get_disc_obs_space().shape == (1420,)  # as AMP's
     obs, info = loc.reset()
     assert obs.shape == (2, 142) and set(info["reward_terms"]) == {"task"}
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mimickit.envs.env_config import load_env_configs
-from mimickit.learning.agent_config import load_agent_config
-from mimickit.run_args import RUN_ARGS, check_run_args
+from mimickit.envs.env_builder import load_env_configs
+from mimickit.learning.agent_builder import load_agent_config
+from mimickit.runner.args import RUN_ARGS, check_run_args
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.config import MAX_ECHO_CHARS, MAX_YAML_BYTES, load_yaml, load_yaml_text
 from mimickit.util.errors import MimicKitError
@@ -179,6 +179,34 @@ ENV_VALUE_CASES = [
 def test_env_config_values(tmp_path: Path, env: dict[str, object], needle: str) -> None:
     with pytest.raises(MimicKitError) as e:
         load_env_configs(env_yaml(tmp_path, **env), ENGINE_YAML)
+    assert_one_line(e, needle, "env.yaml")
+
+
+def env_yaml_beside(tmp_path: Path, **top: object) -> Path:
+    """The shipped env yaml (MimicKit's layout, fields under `env:`) with `top` beside the block."""
+    raw = yaml.safe_load(ENV_YAML.read_text())
+    raw.update(top)
+    return write(tmp_path, "beside_env.yaml", yaml.safe_dump(raw))
+
+
+@pytest.mark.parametrize(
+    "top, needle",
+    [
+        pytest.param(
+            {"motion_file": "/nonexistent/x.pkl"},
+            "key 'motion_file' stands beside the env: block",
+            id="err-env-clip-beside-block",
+        ),
+        pytest.param(
+            {"typo_key": 1}, "unknown key 'typo_key' beside the env: block", id="err-env-unknown-key-beside-block"
+        ),
+        pytest.param({"engin": {"sim_freq": 120}}, "did you mean 'engine'?", id="err-env-engine-typo-beside-block"),
+        pytest.param({"episode_lenght": 5.0}, "did you mean 'episode_length'?", id="err-env-field-typo-beside-block"),
+    ],
+)
+def test_key_beside_the_env_block(tmp_path: Path, top: dict[str, object], needle: str) -> None:
+    with pytest.raises(MimicKitError) as e:
+        load_env_configs(env_yaml_beside(tmp_path, **top), ENGINE_YAML)
     assert_one_line(e, needle, "env.yaml")
 
 
@@ -412,6 +440,7 @@ def cli_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
         "toaster": ([*base, "--devices", "toaster"], "unknown device 'toaster'"),
         "binary_args": (["--arg_file", str(binary_args)], "binary file"),
         "phase": ([*base, "--env_config", str(env_yaml(tmp, num_phase_encoding=10**8))], "num_phase_encoding"),
+        "beside": ([*base, "--env_config", str(env_yaml_beside(tmp, typo_key=1))], "unknown key 'typo_key'"),
     }
 
 
@@ -422,6 +451,7 @@ CLI_CASES = [
     pytest.param("toaster", id="err-cli-train-devices-toaster"),
     pytest.param("binary_args", id="err-cli-train-binary-arg-file"),
     pytest.param("phase", id="err-cli-train-phase-encoding-1e8"),
+    pytest.param("beside", id="err-cli-train-key-beside-env-block"),
 ]
 
 
@@ -434,3 +464,13 @@ def test_cli_train_refuses_in_one_line(tmp_path: Path, case: str) -> None:
     assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-3000:]
     assert lines[0].startswith("error: ") and needle in lines[0] and len(lines[0]) < MAX_LINE
     assert not (tmp_path / "run").exists() and not (tmp_path / "r1").exists()
+
+
+@pytest.mark.integration
+@one_case("err-cli-bench-clip-beside-env-block")
+def test_cli_bench_refuses_a_key_beside_the_env_block(case: str, tmp_path: Path) -> None:
+    env = env_yaml_beside(tmp_path, motion_file="/nonexistent/x.pkl")
+    proc = mimickit("bench", "--env_config", str(env), "--num_envs", "1", "--steps", "1", cwd=tmp_path)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr[-3000:]
+    assert lines[0].startswith("error: ") and "'motion_file'" in lines[0] and str(env) in lines[0], lines[0]

@@ -15,10 +15,10 @@ import torch.nn.functional as F
 
 from mimickit.envs.add_env import ADDEnv
 from mimickit.envs.base_env import BoxSpace
-from mimickit.envs.env_config import load_env_configs
+from mimickit.envs.env_builder import load_env_configs
 from mimickit.learning.add_agent import ADDAgent, compute_disc_loss, disc_input
-from mimickit.learning.agent_builder import build_agent_from_config
-from mimickit.learning.agent_config import ADDAgentConfig, load_agent_config
+from mimickit.learning.agent_builder import build_agent_from_config, load_agent_config
+from mimickit.learning.agent_config import ADDAgentConfig
 from mimickit.learning.amp_agent import calc_disc_rewards, style_rewards
 from mimickit.learning.amp_model import AMPModel
 from mimickit.learning.base_agent import TRAIN_STATE_KEY

@@ -1,6 +1,7 @@
 import pytest
 
-from mimickit.learning.agent_config import AWRAgentConfig, PPOAgentConfig, load_agent_config
+from mimickit.learning.agent_builder import load_agent_config
+from mimickit.learning.agent_config import AWRAgentConfig, PPOAgentConfig
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
 from tests.util.config_errors import load_error

@@ -1,5 +1,7 @@
 """The agent registry (`AGENTS`): every name loads its config class from a yaml and resolves its agent class
-(the builder builds from the same entry); an unknown name is one error line naming the nearest."""
+(the builder builds from the same entry); an unknown name is one error line naming the nearest. What is
+checked is derived from the registry (tests/util/registry_checks.py): a new agent is checked without editing
+this."""
 
 from __future__ import annotations
 
@@ -7,27 +9,23 @@ from pathlib import Path
 
 import pytest
 
-from mimickit.learning.agent_builder import build_agent_from_config
-from mimickit.learning.agent_config import AGENTS, DummyAgentConfig, load_agent_config
+from mimickit.learning.agent_builder import AGENTS, build_agent_from_config, load_agent_config
+from mimickit.learning.agent_config import DummyAgentConfig
 from mimickit.learning.base_agent import BaseAgent
-from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
-from mimickit.util.paths import PROJECT_DATA_DIR
 from tests.learning.toy_env import TargetReachEnv
 from tests.util.config_errors import load_error
+from tests.util.registry_checks import shipped_yamls, supported_list, undocumented
 
 
 def shipped_agent_yamls() -> dict[str, Path]:
     """The first shipped agent yaml of each agent_name."""
-    found: dict[str, Path] = {}
-    for path in sorted((PROJECT_DATA_DIR / "agents").glob("*.yaml")):
-        found.setdefault(load_yaml(path)["agent_name"], path)
-    return found
+    return shipped_yamls("agents", "agent_name")
 
 
-def test_the_reference_agent_names_are_registered():
-    assert AGENTS.names == ("PPO", "AWR", "AMP", "ADD", "ASE", "Dummy")
+def test_every_shipped_agent_yaml_is_registered_and_every_agent_documented():
     assert set(shipped_agent_yamls()) <= set(AGENTS.names)
+    assert not undocumented(AGENTS.names)
 
 
 @pytest.mark.parametrize("name", AGENTS.names)
@@ -52,9 +50,9 @@ def test_an_unknown_agent_name_is_one_line_naming_the_nearest(tmp_path):
     f.write_text("agent_name: PPP\n")
     with pytest.raises(MimicKitError) as e:
         load_agent_config(f)
-    assert str(e.value) == (
-        f"{f}: key 'agent_name': agent 'PPP' is not supported; "
-        "supported agents: PPO, AWR, AMP, ADD, ASE, Dummy (did you mean 'PPO'?)"
+    assert (
+        str(e.value)
+        == f"{f}: key 'agent_name': agent 'PPP' is not supported; {supported_list(AGENTS)} (did you mean 'PPO'?)"
     )
 
 
@@ -62,7 +60,7 @@ def test_an_unknown_agent_name_is_one_line_naming_the_nearest(tmp_path):
     "value, needle",
     [
         ("SMP", "agent 'SMP' is not supported (not ported yet); supported agents: PPO,"),
-        ("Zebra", "agent 'Zebra' is not supported; supported agents: PPO, AWR, AMP, ADD, ASE, Dummy"),
+        ("Zebra", f"agent 'Zebra' is not supported; {supported_list(AGENTS)}"),
         ("[PPO]", "agent ['PPO'] is not supported"),
         ("3", "agent 3 is not supported"),
     ],

@@ -13,8 +13,8 @@ import torch
 from mimickit.envs.amp_env import AMPEnv
 from mimickit.envs.env_builder import build_env
 from mimickit.learning import disc_util
-from mimickit.learning.agent_builder import build_agent_from_config
-from mimickit.learning.agent_config import AMPAgentConfig, load_agent_config
+from mimickit.learning.agent_builder import build_agent_from_config, load_agent_config
+from mimickit.learning.agent_config import AMPAgentConfig
 from mimickit.learning.amp_agent import AMPAgent, calc_disc_rewards, compute_disc_loss, store_disc_replay, style_rewards
 from mimickit.learning.amp_model import AMPModel
 from mimickit.learning.base_agent import TRAIN_STATE_KEY

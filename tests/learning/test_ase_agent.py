@@ -13,8 +13,8 @@ from mimickit.envs.ase_env import ASEEnv
 from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.env_builder import build_env
 from mimickit.learning import ase_util
-from mimickit.learning.agent_builder import build_agent_from_config
-from mimickit.learning.agent_config import ASEAgentConfig, load_agent_config
+from mimickit.learning.agent_builder import build_agent_from_config, load_agent_config
+from mimickit.learning.agent_config import ASEAgentConfig
 from mimickit.learning.ase_agent import ASEAgent, calc_enc_rewards, compute_diversity_loss, compute_enc_loss
 from mimickit.learning.ase_model import ASEModel
 from mimickit.learning.normalizer import Normalizer

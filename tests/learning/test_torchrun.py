@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from mimickit.run_folder import RunFolder
-from mimickit.torchrun_env import node_devices, read_torchrun_env
+from mimickit.learning.run_folder import RunFolder
+from mimickit.runner.torchrun_env import node_devices, read_torchrun_env
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_ROOT
 
@@ -113,7 +113,7 @@ def _children(pid: int) -> list[int]:
 @pytest.mark.slow  # one 2-process training per case, stopped after its first iteration: ~15 s each
 # SIGTERM to torchrun itself is not tested: torchrun forwards it to the workers with a 30 s grace and
 # then SIGKILLs them, and in one CI run (2026-12-02) the workers died without saving (state.json stayed
-# "running"). The README tells users to stop the workers, as this test does.
+# "running"). docs/cli.md tells users to stop the workers, as this test does.
 @pytest.mark.parametrize(("target", "torchrun_rc"), [("workers", 0)])
 def test_sigterm_under_torchrun_saves_a_checkpoint(tmp_path: Path, target: str, torchrun_rc: int) -> None:
     """SIGTERM to the workers: they checkpoint and exit 0, and so does torchrun."""

@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -84,15 +85,84 @@ class StudioProcess:
         self.proc.wait()
 
 
-def wait_for(fn: Callable[[], object], timeout: float = 20.0, what: str = "condition") -> object:
-    """Poll `fn` until it returns something truthy."""
+def wait_for(
+    fn: Callable[[], object],
+    timeout: float = 20.0,
+    what: str | Callable[[], str] = "condition",
+    page: Any = None,
+) -> object:
+    """Poll `fn` until it returns something truthy. `what` may be a function, called at a timeout, to say
+    what was seen then. Give the `page` when `fn` reads what the page's event handlers (`page.on(...)`)
+    collected: Playwright's sync API delivers events only while it is called, so the wait must be the page's
+    (a `time.sleep` loop saw no websocket frame for 60 s in CI while they were arriving)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         value = fn()
         if value:
             return value
-        time.sleep(0.1)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        if page is None:
+            time.sleep(0.1)
+        else:
+            page.wait_for_timeout(100)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what() if callable(what) else what}")
+
+
+# -- Chromium (Playwright over the apt browser) ------------------------------------------------------------
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu"]
+# The scene's software WebGL shares the page's main thread (same-origin iframe): on a loaded machine
+# a click can wait for it well past Playwright's default 30 s.
+ACTION_TIMEOUT_MS = 90_000
+
+
+@pytest.fixture(scope="session")
+def chromium() -> Iterator[Any]:
+    """One headless Chromium for the session's browser tests (started once: a launch costs seconds on a
+    loaded machine). Its tests run last (`pytest_collection_modifyitems` below)."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
+    if CHROMIUM is None:
+        pytest.skip("no chromium on PATH (apt-get install chromium)")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def browser(chromium: Any) -> Iterator[Any]:
+    """A fresh browser context of the shared Chromium per test module: its pages (and their software
+    WebGL) are closed when the module ends, so they neither load nor share storage with the next."""
+    context = chromium.new_context()
+    yield context
+    context.close()
+
+
+def new_page(browser: Any, url: str | None, width: int = 1280, height: int = 720) -> Any:
+    """A page of `browser` at `width`×`height`, with the long action timeout and `page.errors` collecting
+    uncaught script errors (pageerror); opened at `url` unless None."""
+    page = browser.new_page()
+    page.set_viewport_size({"width": width, "height": height})
+    page.set_default_timeout(ACTION_TIMEOUT_MS)
+    page.errors = []
+    page.on("pageerror", lambda e: page.errors.append(str(e)))
+    if url is not None:
+        page.goto(url)
+    return page
+
+
+def scene_page(browser: Any, url: str, width: int = 1280, height: int = 720, wait_s: float = 60) -> Any:
+    """`new_page` at `url`, once the page shows the scene's state (its frame label is filled)."""
+    page = new_page(browser, url, width, height)
+    wait_for(lambda: page.locator("#frame-label").inner_text() != "–", wait_s, "the scene state on the page")
+    return page
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The modules using the shared Chromium run after every other test. While Playwright's sync API is
+    running, the thread has an asyncio loop: `asyncio.run` in a later test, or another test's own
+    `sync_playwright()`, would fail."""
+    shared = {item.module for item in items if "chromium" in getattr(item, "fixturenames", ())}
+    items.sort(key=lambda item: getattr(item, "module", None) in shared)  # stable: order kept within each part
 
 
 def write_arg_file(runs_dir: Path, name: str, rows: int = 10, period: float = 0.2, exit_code: int = 0) -> Path:
@@ -116,15 +186,18 @@ def studio(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
     server.stop()
 
 
-def write_checkpoint_dir(folder: Path, env_yaml: str | None = None, save_model: bool = True) -> Path:
-    """A run-like folder: the configs a trainer copies (`env_yaml` text replaces the demo env's) and a
-    `model.pt` of a fresh PPO agent for them, saved with its train state as `mimickit train` saves it."""
+def write_checkpoint_dir(
+    folder: Path, env_yaml: str | None = None, save_model: bool = True, agent_yaml: Path | None = None
+) -> Path:
+    """A run-like folder: the configs a trainer copies (`env_yaml` text replaces the demo env's,
+    `agent_yaml` the demo PPO agent's) and a `model.pt` of a fresh agent for them, saved with its train
+    state as `mimickit train` saves it."""
     from mimickit.envs.env_builder import build_env
     from mimickit.learning.agent_builder import build_agent
 
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "env_config.yaml").write_text(env_yaml if env_yaml is not None else ENV_YAML.read_text())
-    shutil.copyfile(AGENT_YAML, folder / "agent_config.yaml")
+    shutil.copyfile(agent_yaml or AGENT_YAML, folder / "agent_config.yaml")
     shutil.copyfile(ENGINE_YAML, folder / "engine_config.yaml")
     (folder / "args.json").write_text(json.dumps({"mode": ["train"], "out_dir": [str(folder)]}))
     if not save_model:

@@ -6,10 +6,10 @@ is also run with the real trainer in test_launch_fields.py / test_real_run.py.
                     [--rand_seed S] [--data_dir X] [--model_file D/model.pt]
 
 It reads its arguments with MimicKit's own parser and runs the real trainer's checks on them
-(`mimickit.run_args.check_run_args`), so it refuses what the real trainer refuses (an unknown key,
+(`mimickit.runner.args.check_run_args`), so it refuses what the real trainer refuses (an unknown key,
 a bad value: exit 2, one `error: ...` line) and accepts only its own three keys beyond. Like the real
 trainer it writes,
-through `mimickit.run_folder`, `args.json` (argv, effective values, seed), `state.json` (running, then
+through `mimickit.learning.run_folder`, `args.json` (argv, effective values, seed), `state.json` (running, then
 finished / stopped / failed), `metrics.jsonl` (one row per iteration, flushed per line; a
 `{"event": "resume"}` row when resumed), `log.txt` and `model.pt` (atomically, after every iteration);
 it saves a checkpoint and exits 0 on SIGTERM, and resumes its counts from `--model_file`. Its own keys
@@ -26,8 +26,8 @@ import sys
 import time
 from pathlib import Path
 
-from mimickit.run_args import check_run_args
-from mimickit.run_folder import EndState, ExitCode, RunFolder, resume_row
+from mimickit.learning.run_folder import EndState, ExitCode, RunFolder, resume_row
+from mimickit.runner.args import check_run_args
 from mimickit.util.arg_parser import ArgParser
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import atomic_write_bytes

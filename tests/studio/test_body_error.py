@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import viser
 
-from studio.rollout import Frame, Rollout, RolloutPlayer, source_for_checkpoint
-from studio.scene import BODY_ERROR_SCALE_M, BODY_ERROR_STOPS, StudioScene, error_colour
+from studio.scene.rollout import Frame, Rollout, RolloutPlayer, source_for_checkpoint
+from studio.scene.view import BODY_ERROR_SCALE_M, BODY_ERROR_STOPS, StudioScene, error_colour
 from tests.studio.conftest import StudioProcess, wait_for, write_checkpoint_dir
 
 pytestmark = pytest.mark.slow
@@ -75,6 +75,7 @@ def test_rows_state_and_scene_colours(rollout: Rollout) -> None:
             for b, e in zip(rollout.char_bodies, shown.body_error, strict=True):
                 assert colours[int(b)] == error_colour(e), rollout.body_names[list(rollout.char_bodies).index(b)]
             assert len(set(colours.values())) > 1  # the bodies differ
+            assert s["colours"] == [list(colours[int(b)]) for b in rollout.char_bodies]  # the page's bars: the same
             rows = rp.history_rows(since_step=shown.step - 5)
             assert rows[-1]["body_error"] == pytest.approx(shown.body_error.tolist(), abs=1e-5)
 

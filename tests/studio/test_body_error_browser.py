@@ -1,27 +1,25 @@
 """The rollout panel's per-body error bars in real Chromium (Playwright, the apt browser): a rollout of the
 shipped demo model shows one bar per body of the character, with the errors of the frame the scene shows
-(a history frame after a seek) in the colours of the scene's scale; closing the rollout hides them."""
+(a history frame after a seek) in the colours of the scene's scale; closing the rollout hides them. An AMP
+rollout, whose policy follows the clip's style and not its ghost, shows none, and its reward plot takes in
+its style reward (above 1)."""
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from studio.scene import error_colour
-from tests.studio.conftest import StudioProcess, wait_for
+from mimickit.util.paths import PROJECT_DATA_DIR
+from studio.scene.view import error_colour
+from tests.studio.conftest import CHROMIUM, StudioProcess, scene_page, wait_for, write_checkpoint_dir
 
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
 ]
 SHIPPED = "data/models/deepmimic_humanoid_demo_model.pt"
-ACTION_TIMEOUT_MS = 90_000  # the scene's software WebGL shares the page's main thread
 
 
 @pytest.fixture(scope="module")
@@ -32,17 +30,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
 
 
 @pytest.fixture(scope="module")
-def page(server: StudioProcess):
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        page = browser.new_page(viewport={"width": 1280, "height": 720})
-        page.set_default_timeout(ACTION_TIMEOUT_MS)
-        page.errors = []
-        page.on("pageerror", lambda e: page.errors.append(str(e)))
-        page.goto(server.url)
-        wait_for(lambda: page.locator("#frame-label").inner_text() != "–", 60, "the scene state on the page")
-        yield page
-        browser.close()
+def page(server: StudioProcess, browser):
+    return scene_page(browser, server.url, 1280, 720)
 
 
 def bars(page) -> list[dict]:
@@ -85,3 +74,56 @@ def test_one_bar_per_body_for_the_frame_shown(page, server: StudioProcess, tmp_p
         server.post("/api/scene/rollout/close")
     page.locator("#body-error").wait_for(state="hidden", timeout=60_000)
     assert page.errors == []
+
+
+def test_an_amp_rollout_plots_its_style_reward_and_shows_no_tracking_error(
+    page, server: StudioProcess, tmp_path: Path
+) -> None:
+    # An untrained discriminator's reward is -log(1 - sigmoid(D)) * scale with D near 0: 0.9-2.4 at the
+    # project's scale 2 (its random start decides); at scale 10 it is well above 1 whatever the start.
+    agent = (PROJECT_DATA_DIR / "agents" / "amp_humanoid_agent.yaml").read_text()
+    assert "disc_reward_scale: 2\n" in agent
+    (tmp_path / "agent.yaml").write_text(agent.replace("disc_reward_scale: 2\n", "disc_reward_scale: 10\n"))
+    amp = write_checkpoint_dir(
+        server.runs_dir / "amp-fresh",
+        (PROJECT_DATA_DIR / "envs" / "amp_humanoid_env.yaml").read_text(),
+        agent_yaml=tmp_path / "agent.yaml",
+    )
+    r = server.post("/api/scene/load_rollout", {"checkpoint": str(amp)})
+    assert r.status_code == 200, r.text
+    try:
+        s = wait_for(lambda: (s := server.get("/api/scene/state").json())["rollout"]["step"] >= 20 and s, 60, "steps")
+        assert s["rollout"]["body_error"] is None, s["rollout"]["body_error"]
+        rows = server.get("/api/scene/rollout/history").json()["rows"]
+        disc = max(row["terms"]["disc"] for row in rows)
+        assert disc > 1, rows
+        plot = page.locator("#rollout-plot")
+
+        def y_top() -> float | None:
+            v = plot.get_attribute("data-y-range")  # "null,null" while the plot has no data
+            return float(v.split(",")[1]) if v and "null" not in v else None
+
+        seen = lambda: f"the plot's y axis to take in the style reward (up to {disc:.2f}): top {y_top()}"  # noqa: E731
+        wait_for(lambda: (top := y_top()) is not None and top > 1, 60, seen, page=page)
+        assert page.locator("#body-error").is_hidden()
+    finally:
+        server.post("/api/scene/rollout/close")
+
+
+def test_a_rollout_scrubbed_back_past_the_plot_window_keeps_its_cursor_in_view(page, server: StudioProcess) -> None:
+    r = server.post("/api/scene/load_rollout", {"checkpoint": SHIPPED, "play": False})
+    assert r.status_code == 200, r.text
+    try:
+        server.post("/api/scene/step", {"frames": 300})
+        end = server.post("/api/scene/step", {"frames": 150}).json()["time"]  # 15 s recorded
+        plot = page.locator("#rollout-plot")
+
+        def x_range() -> tuple[float, float] | None:
+            v = plot.get_attribute("data-x-range")  # "null,null" while the plot has no data
+            return tuple(map(float, v.split(","))) if v and "null" not in v else None
+
+        wait_for(lambda: (x := x_range()) and x[1] >= end - 0.1, 60, "the plot at the live end", page=page)
+        shown = server.post("/api/scene/seek", {"frame": 30}).json()["time"]  # 1 s in: 14 s back
+        wait_for(lambda: (x := x_range()) and x[0] <= shown <= x[1], 60, "the plot around the cursor", page=page)
+    finally:
+        server.post("/api/scene/rollout/close")

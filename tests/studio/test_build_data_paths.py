@@ -10,7 +10,7 @@ import mujoco  # noqa: F401  (at collection: importing it probes GLFW in a child
 import pytest
 
 from mimickit.util.paths import PROJECT_DATA_DIR
-from studio.checkpoints import env_spaces
+from studio.runs.checkpoints import env_spaces
 
 ARM = """<mujoco><worldbody><body name="torso" pos="0 0 1"><freejoint/><geom type="box" size=".1 .1 .1" mass="2"/>
   <body name="link"><joint name="elbow" type="hinge" axis="0 1 0" stiffness="50" damping="5"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from mimickit.run_folder import EndState, RunFolder
+from mimickit.learning.run_folder import EndState, RunFolder
 from tests.studio.conftest import StudioProcess, wait_for
 
 pytestmark = pytest.mark.integration

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import io
 import os
-import shutil
 import time
 from pathlib import Path
 
@@ -21,33 +20,24 @@ import numpy as np
 import pytest
 
 from mimickit.util.paths import PROJECT_ROOT
-from tests.studio.conftest import StudioProcess, wait_for
+from tests.studio.conftest import CHROMIUM, StudioProcess, new_page, wait_for
 
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
 Image = pytest.importorskip("PIL.Image")
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
 ]
 RENDER_WAIT_S = 3.0  # software WebGL draws about one frame a second
-# The scene's software WebGL shares the page's main thread (same-origin iframe): on a loaded machine
-# a click can wait for it well past Playwright's default 30 s.
-ACTION_TIMEOUT_MS = 90_000
 HIDE_TOAST = "[class*=Notification-root] { display: none !important; }"
 
 
 @pytest.fixture(scope="module")
-def page(studio: StudioProcess):
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        page = browser.new_page(viewport={"width": 1280, "height": 720})
-        page.on("dialog", lambda d: d.accept())  # "Delete run …?" confirmations
-        page.set_default_timeout(ACTION_TIMEOUT_MS)
-        page.goto(studio.url)
-        yield page
-        browser.close()
+def page(studio: StudioProcess, browser):
+    page = new_page(browser, None, 1280, 720)
+    page.on("dialog", lambda d: d.accept())  # "Delete run …?" confirmations
+    page.goto(studio.url)
+    return page
 
 
 def state(studio: StudioProcess) -> dict:
@@ -113,10 +103,11 @@ def test_launch_and_stop_a_run_from_the_page(page, studio: StudioProcess, tmp_pa
     item = page.locator(f"[data-run-id='{run['id']}']")
     item.locator(".status.running").wait_for(timeout=10_000)
     page.click("#launch-box summary")  # fold the form again: the curves move up
-    # Live curves from the metrics stream (uPlot): both returns, falls and the two paper errors, each
-    # reward term, the losses.
+    # Live curves from the metrics stream (uPlot): both returns, falls, the two paper errors (one plot
+    # per unit), each reward term, the losses.
     page.wait_for_selector("#curves [data-group=returns][data-series='2'] canvas", timeout=15_000)
-    page.wait_for_selector("#curves [data-group=falls][data-series='3']")
+    for group in ("falls", "pos_err", "vel_err"):
+        page.wait_for_selector(f"#curves [data-group={group}][data-series='1']")
     page.wait_for_selector("#curves [data-group=rewards][data-series='2']")
     page.wait_for_selector("#curves [data-group=losses][data-series='2']")
     if state(studio)["clip"]:
@@ -140,7 +131,8 @@ def test_launch_and_stop_a_run_from_the_page(page, studio: StudioProcess, tmp_pa
 
 def test_rollout_in_the_browser(page, studio: StudioProcess, demo_checkpoint: Path, tmp_path: Path) -> None:
     page.reload()
-    page.wait_for_selector(f"#checkpoint option[value='{demo_checkpoint}']", state="attached", timeout=15_000)
+    # 60 s: in CI's two workers the software-rendered 3D view can hold the page's thread for seconds.
+    page.wait_for_selector(f"#checkpoint option[value='{demo_checkpoint}']", state="attached", timeout=60_000)
     page.select_option("#checkpoint", value=str(demo_checkpoint))
     page.click("#rollout-button")
     s = wait_for(lambda: (st := state(studio))["mode"] == "rollout" and st, 30, "the rollout to load")
@@ -148,8 +140,10 @@ def test_rollout_in_the_browser(page, studio: StudioProcess, demo_checkpoint: Pa
     wait_for(lambda: state(studio)["rollout"]["step"] > 30, 15, "the rollout to step")
     page.locator("#rollout-panel").wait_for(state="visible")
     # The dashboard's plot (uPlot): the reward and the five reward terms, fed by the stream.
-    page.wait_for_selector("#rollout-plot[data-series='6'] canvas", timeout=15_000)
+    page.wait_for_selector("#rollout-plot[data-series='6'] canvas", timeout=60_000)
     assert "episode" in page.locator("#rollout-label").inner_text()
+    assert "no training record" in page.locator("#rollout-label").inner_text()  # a fresh agent's checkpoint
+    wait_for(lambda: "× real time" in page.locator("#clip-label").inner_text(), 15, "the measured rate", page=page)
 
     page.select_option("#fit-target", value="env_config=data/envs/deepmimic_humanoid_env.yaml")
     page.click("#inspect-button")

@@ -7,17 +7,22 @@ second row rolls out that clip."""
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for, write_demo_dataset
+from studio.jobs.evals import EVALS_DIR
+from tests.studio.conftest import (
+    ACTION_TIMEOUT_MS,
+    CHROMIUM,
+    REAL_TRAINER,
+    StudioProcess,
+    scene_page,
+    wait_for,
+    write_demo_dataset,
+)
 
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
@@ -26,8 +31,6 @@ SHIPPED = "data/models/deepmimic_humanoid_demo_model.pt"
 DEMO_ARGS = "args/deepmimic_humanoid_demo_ppo_args.txt"
 RUN_TIMEOUT_S = 300.0  # a real two-iteration training on a shared 2-core CPU
 CLIP = "data/motions/humanoid_demo_squat.pkl"
-# The scene's software WebGL shares the page's main thread: on a loaded machine an action can wait long.
-ACTION_TIMEOUT_MS = 90_000
 EVAL_TIMEOUT_S = 300.0  # a real eval on a shared 2-core CPU
 
 
@@ -39,17 +42,22 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
 
 
 @pytest.fixture(scope="module")
-def page(server: StudioProcess):
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        page = browser.new_page(viewport={"width": 1500, "height": 900})
-        page.set_default_timeout(ACTION_TIMEOUT_MS)
-        page.errors = []
-        page.on("pageerror", lambda e: page.errors.append(str(e)))
-        page.goto(server.url)
-        wait_for(lambda: page.locator("#frame-label").inner_text() != "–", 60, "the scene state on the page")
-        yield page
-        browser.close()
+def page(server: StudioProcess, browser):
+    return scene_page(browser, server.url, 1500, 900)
+
+
+def test_models_that_need_mimickits_data_say_so_and_are_not_the_first_pick(page, server: StudioProcess) -> None:
+    walk = "data/models/deepmimic_humanoid_walk_model.pt"
+    listed = {c["path"]: c for c in server.get("/api/checkpoints").json()}
+    assert listed[walk]["needs_data"] == "data/motions/humanoid/humanoid_walk.pkl"
+    assert listed[SHIPPED]["needs_data"] is None  # the demo clip ships with the project
+    option = page.locator(f"#eval-checkpoint option[value='{walk}']")
+    wait_for(lambda: option.count() == 1, 60, "the walk model in the eval form", page=page)
+    assert "needs humanoid_walk.pkl: start the studio with --data-dir" in option.inner_text()
+    assert listed[page.locator("#eval-checkpoint").input_value()]["needs_data"] is None
+    r = server.post("/api/scene/load_rollout", {"checkpoint": walk})
+    assert r.status_code == 400, r.text
+    assert "plays data/motions/humanoid/humanoid_walk.pkl" in r.json()["detail"] and "--data-dir" in r.json()["detail"]
 
 
 def test_an_eval_from_the_page_shows_its_table_and_a_row_rolls_out(page, server: StudioProcess) -> None:
@@ -67,7 +75,14 @@ def test_an_eval_from_the_page_shows_its_table_and_a_row_rolls_out(page, server:
     job_id = int(job.get_attribute("data-eval-id"))
     assert server.get(f"/api/evals/{job_id}").json()["motion_file"].endswith(CLIP)
     status = job.locator("[data-field=status]")
-    wait_for(lambda: status.inner_text() in ("finished", "failed"), EVAL_TIMEOUT_S, "the eval to end on the page")
+    wait_for(
+        lambda: status.inner_text() in ("finished", "failed"),
+        EVAL_TIMEOUT_S,
+        lambda: (
+            f"the eval to end on the page; the page says {status.inner_text()!r}, the API "
+            f"{server.get(f'/api/evals/{job_id}').json()}, its console {_console_tail(server, job_id)!r}"
+        ),
+    )
     assert status.inner_text() == "finished", job.locator("[data-field=error]").inner_text()
     assert job.get_attribute("data-same-element") == "yes"  # the stream's updates landed in place
 
@@ -200,3 +215,49 @@ def eval_state(server: StudioProcess, job_id: int) -> str:
     tail = log.read_text(errors="replace")[-1500:] if log.is_file() else "(no console.log)"
     times = {k: job[k] for k in ("status", "error", "created_at", "started_at", "ended_at")}
     return f"{times}, console.log ends: {tail!r}"
+
+
+def _console_tail(server: StudioProcess, job_id: int) -> str:
+    """The last lines of an eval job's console, for a failure message."""
+    folders = list((server.runs_dir / EVALS_DIR).glob(f"{job_id:04d}-*"))
+    try:
+        return "\n".join(folders[0].joinpath("console.log").read_text(errors="replace").splitlines()[-5:])
+    except (IndexError, OSError) as e:
+        return f"(none: {e})"
+
+
+# The page's own GET /api/evals after a submit, answered with the list as it was then but arriving only
+# after the stream's last push (a loaded server): held in the page until the test lets it go.
+HOLD_EVAL_LISTS = """() => {
+  const fetch0 = window.fetch;
+  window.heldEvalLists = [];
+  window.fetch = async (url, init) => {
+    const answer = await fetch0(url, init);
+    if (String(url).endsWith("/api/evals") && (!init || init.method === "GET")) {
+      await new Promise((release) => window.heldEvalLists.push(release));
+    }
+    return answer;
+  };
+}"""
+
+
+def test_a_late_answer_does_not_put_a_finished_eval_back(page, server: StudioProcess) -> None:
+    """The list the page fetches after a submit is older than the stream's pushes when it arrives late:
+    it must not undo them (a finished job shown as queued for good: no further push would come)."""
+    page.reload()
+    wait_for(lambda: page.locator("#frame-label").inner_text() != "–", 60, "the scene state on the page")
+    page.evaluate(HOLD_EVAL_LISTS)
+    page.select_option("#eval-checkpoint", SHIPPED)
+    page.select_option("#eval-motion", CLIP)
+    page.fill("#eval-episodes", "1")
+    page.click("#eval-button")
+    held = lambda: page.evaluate("window.heldEvalLists.length")  # noqa: E731
+    wait_for(held, 60, "the page's list request, answered and held")
+    job_id = max(j["id"] for j in server.get("/api/evals").json())
+    wait_for(lambda: server.get(f"/api/evals/{job_id}").json()["status"] == "finished", EVAL_TIMEOUT_S, "the eval")
+    status = page.locator(f'[data-eval-id="{job_id}"] [data-field=status]')
+    wait_for(lambda: status.inner_text() == "finished", 60, "the stream's push of the finished job")
+    page.evaluate("window.heldEvalLists.forEach((release) => release())")
+    wait_for(lambda: page.evaluate("window.heldEvalLists.length") and True, 5, "the release")
+    page.wait_for_timeout(2000)  # the late answer has been applied (or dropped) by now
+    assert status.inner_text() == "finished"

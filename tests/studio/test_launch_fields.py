@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mimickit.run_folder import ExitCode, RunFolder, is_event_row
+from mimickit.learning.run_folder import ExitCode, RunFolder, is_event_row
 from mimickit.util.paths import PROJECT_ROOT
 from tests.conftest import write_shifted_demo_clip
 from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for
@@ -205,9 +205,9 @@ def test_a_diverged_run_says_so_with_its_line(server: StudioProcess, diverged_ru
     last = r.json()[-1]
     assert last["nonfinite"] and all(last[k] is None for k in last["nonfinite"])
     assert set(last["nonfinite"].values()) <= {"nan", "inf", "-inf"}
-    with server.client.stream("GET", f"/api/runs/{run['id']}/metrics", timeout=30) as stream:
-        text = "".join(stream.iter_text())
-    assert "NaN" not in text and '"nonfinite"' in text and '"status": "diverged"' in text
+    with server.client.stream("GET", f"/api/stream?run={run['id']}&topics=metrics", timeout=30) as stream:
+        text = next(line for line in stream.iter_lines() if line.startswith("data: ") and '"rows"' in line)
+    assert "NaN" not in text and '"nonfinite"' in text  # the live curves' rows, as the page gets them
 
 
 def test_a_refused_run_fails_with_the_trainers_line(server: StudioProcess) -> None:
@@ -223,9 +223,9 @@ def test_a_refused_run_fails_with_the_trainers_line(server: StudioProcess) -> No
 
 
 def test_a_sweep_value_of_devices_trains_in_two_processes(server: StudioProcess) -> None:
-    """A swept --devices "cpu cpu" reaches the real trainer as two values: one run (a Ray job, with that
-    executor) that is itself a two-process run."""
-    values = {"devices": ["cpu cpu"], "num_envs": [4], "max_samples": [2 * 2 * PER_ITER]}
+    """A swept --devices ["cpu", "cpu"] (a list: each device one argv item) reaches the real trainer as two
+    values: one run (a Ray job, with that executor) that is itself a two-process run."""
+    values = {"devices": [["cpu", "cpu"]], "num_envs": [4], "max_samples": [2 * 2 * PER_ITER]}
     r = server.post("/api/sweeps", {"arg_file": DEMO_ARGS, "values": values, "name": "two procs", "rand_seed": 3})
     assert r.status_code == 201, r.text
     (run,) = r.json()["runs"]
@@ -274,10 +274,12 @@ def test_the_run_list_shows_seed_progress_and_end_state(
 
             item.click()  # its curves: the resume drawn as a marker
             page.wait_for_selector("#curves [data-group=returns][data-markers='1']", timeout=15_000)
-            # The share of test falls and the paper's two tracking errors, on one plot.
-            falls = page.locator("#curves [data-group=falls][data-series='3']")
-            falls.wait_for(timeout=15_000)
-            assert all(k in falls.inner_text() for k in ("test_fail_frac", "paper_pos_err_m", "paper_dof_vel_err"))
+            # The share of test falls and the paper's two tracking errors, one plot per unit.
+            for group, column in (("falls", "test_fail_frac"), ("pos_err", "paper_pos_err_m"),
+                                  ("vel_err", "paper_dof_vel_err")):  # fmt: skip
+                plot = page.locator(f"#curves [data-group={group}][data-series='1']")
+                plot.wait_for(timeout=15_000)
+                assert column in plot.inner_text()
             bad.click()  # the diverged run's losses: the non-finite iteration marked
             page.wait_for_selector("#curves [data-group=losses]:not([data-nonfinite='0'])", timeout=15_000)
             page_actions(page, server, clip)

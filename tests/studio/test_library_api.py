@@ -4,6 +4,7 @@ uploads, and paths that try to leave the data and runs folders."""
 from __future__ import annotations
 
 import pickle
+import re
 
 import pytest
 
@@ -27,6 +28,8 @@ def test_page_and_docs_are_served(studio: StudioProcess) -> None:
     page = studio.get("/")
     assert page.status_code == 200 and "MimicKit Studio" in page.text and 'id="scene"' in page.text
     assert studio.get("/web/main.js").status_code == 200
+    icon = re.search(r'<link rel="icon" href="([^"]+)"', page.text)  # without one, browsers ask /favicon.ico: 404
+    assert icon and studio.get(icon[1]).headers["content-type"].startswith("image/svg+xml")
     assert studio.get("/docs").status_code == 200
     paths = studio.get("/openapi.json").json()["paths"]
     for p in ("/api/health", "/api/motions", "/api/runs", "/api/runs/{run_id}/metrics", "/api/scene/load_clip"):

@@ -14,7 +14,6 @@ dataset when MIMICKIT_TEST_DATA is set.
 from __future__ import annotations
 
 import pickle
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,12 +21,9 @@ import pytest
 
 from mimickit.util.paths import PROJECT_ROOT
 from tests.conftest import DEMO_CLIP
-from tests.studio.conftest import StudioProcess, wait_for, write_arg_file
-from tests.studio.test_page_browser import ACTION_TIMEOUT_MS, scene_frame
+from tests.studio.conftest import CHROMIUM, StudioProcess, new_page, wait_for, write_arg_file
+from tests.studio.test_page_browser import scene_frame
 
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
@@ -61,22 +57,10 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
     s.stop()
 
 
-@pytest.fixture(scope="module")
-def browser() -> Iterator[object]:
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        yield b
-        b.close()
-
-
 def open_page(browser, server: StudioProcess, width: int, height: int):
     """test_page_browser's page, with this file's longer waits: a server on MimicKit's data scans a few
     hundred clips before the page's first scene state."""
-    page = browser.new_page(viewport={"width": width, "height": height})
-    page.set_default_timeout(ACTION_TIMEOUT_MS)
-    page.errors = []
-    page.on("pageerror", lambda e: page.errors.append(str(e)))
-    page.goto(server.url)
+    page = new_page(browser, server.url, width, height)
     page.frame_locator("#scene").locator("canvas").first.wait_for(timeout=WAIT_S * 1000)
     wait_for(lambda: page.locator("#frame-label").inner_text() != "–", WAIT_S, "the scene state on the page")
     page.locator("#library-list .item").first.wait_for(timeout=WAIT_S * 1000)  # the library loaded
@@ -152,6 +136,18 @@ def test_an_arg_file_opens_read_only_with_what_it_trains(browser, server: Studio
     page.click("#detail-close")
     page.locator("#library-detail").wait_for(state="hidden")
     assert page.errors == []
+    page.close()
+
+
+def test_the_launch_form_offers_the_clips_its_arg_files_character_plays(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    page.click("#launch-box summary")
+    assert page.locator("#arg-file").input_value().endswith("deepmimic_humanoid_demo_ppo_args.txt")  # the default
+    clips = page.locator("#motion-file")
+    wait_for(lambda: clips.get_attribute("data-frame-dim") == "34", WAIT_S, "the humanoid's clips", page=page)
+    offered = clips.locator("option").evaluate_all("os => os.map(o => o.value)")
+    assert SQUAT in offered and "data/motions/odd.pkl" not in offered  # 10 values a frame: no humanoid clip
+    assert "data/datasets/mix.yaml" in offered  # datasets stay: their clips are checked at the start
     page.close()
 
 

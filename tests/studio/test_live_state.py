@@ -8,12 +8,15 @@ import asyncio
 import json
 from pathlib import Path
 
+import pytest
+
 from studio.live_state import (
     LOG_TAIL_BYTES,
     METRICS_BATCH_ROWS,
     LiveState,
     LogFollower,
     MetricsFollower,
+    Sampled,
     Versioned,
 )
 
@@ -39,7 +42,7 @@ def watchers() -> int:
 
 def test_one_watcher_for_all_listeners_and_none_without() -> None:
     scene = Source()
-    live = LiveState(scene, lambda: [])
+    live = LiveState({"scene": Sampled(scene), "runs": Sampled(list, every=10)})
 
     async def listen(stop: asyncio.Event) -> None:
         async with live.subscribe():
@@ -50,7 +53,7 @@ def test_one_watcher_for_all_listeners_and_none_without() -> None:
         tasks = [asyncio.create_task(listen(stop)) for _ in range(3)]
         await asyncio.sleep(0.3)
         assert live.watching and watchers() == 1
-        assert live.scene.value == {"frame": 0} and live.runs.value == []
+        assert live.topics["scene"].value == {"frame": 0} and live.topics["runs"].value == []
         stop.set()
         await asyncio.gather(*tasks)
         await asyncio.sleep(0)
@@ -64,19 +67,20 @@ def test_one_watcher_for_all_listeners_and_none_without() -> None:
 
 def test_a_change_wakes_the_listeners_and_a_failed_read_keeps_the_last_value() -> None:
     scene = Source()
-    live = LiveState(scene, lambda: [])
+    live = LiveState({"scene": Sampled(scene), "runs": Sampled(list, every=10)})
 
     async def main() -> None:
         async with live.subscribe():
             seen = live.versions
             scene.value = {"frame": 5}
             await asyncio.wait_for(live.wait(seen, timeout=60), 10)
-            assert live.scene.value == {"frame": 5} and live.scene.version == seen[0] + 1
+            scene_topic = live.topics["scene"]
+            assert scene_topic.value == {"frame": 5} and scene_topic.version == seen[0] + 1
             scene.fail = True
             reads = scene.reads
             while scene.reads < reads + 3:
                 await asyncio.sleep(0.05)
-            assert live.scene.value == {"frame": 5} and live.watching
+            assert scene_topic.value == {"frame": 5} and live.watching
 
     asyncio.run(main())
 
@@ -133,3 +137,23 @@ def test_metrics_follower_batches_the_backlog(tmp_path: Path) -> None:
         f.write(json.dumps({"iteration": n}) + "\n")
     assert follower.read() == [{"reset": False, "start": n, "rows": [{"iteration": n}]}]
     assert MetricsFollower(tmp_path / "none.jsonl").read() == [{"reset": True, "start": 0, "rows": []}]
+
+
+def test_a_topic_without_a_period_is_read_at_start_and_when_woken() -> None:
+    jobs = Source()
+    live = LiveState({"scene": Sampled(Source()), "jobs": Sampled(jobs, every=None)})
+
+    async def main() -> None:
+        async with live.subscribe():
+            seen, reads = live.versions, jobs.reads
+            assert reads == 1 and live.topics["jobs"].value == {"frame": 0}
+            jobs.value = {"frame": 9}
+            await asyncio.sleep(0.5)
+            assert jobs.reads == reads and live.versions == seen  # not woken: not read
+            live.wake("jobs")
+            await asyncio.wait_for(live.wait(seen, timeout=60), 10)
+            assert jobs.reads == reads + 1 and live.topics["jobs"].value == {"frame": 9}
+
+    asyncio.run(main())
+    with pytest.raises(KeyError, match="no topic 'job'"):
+        live.wake("job")

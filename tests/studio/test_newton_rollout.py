@@ -19,8 +19,8 @@ pytest.importorskip("newton", reason="the Newton engine needs the optional extra
 from mimickit.tools.bench import run_bench  # noqa: E402
 from mimickit.tools.video import VideoOptions, policy_video  # noqa: E402
 from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT  # noqa: E402
-from studio.replay import rollout_frames, write_rollout_replay  # noqa: E402
-from studio.rollout import Rollout, RolloutPlayer, source_for_checkpoint  # noqa: E402
+from studio.scene.replay import rollout_frames, write_rollout_replay  # noqa: E402
+from studio.scene.rollout import Rollout, RolloutPlayer, source_for_checkpoint  # noqa: E402
 from tests.tools.test_video import character_pixels, decode  # noqa: E402
 
 pytestmark = pytest.mark.integration
@@ -65,10 +65,12 @@ def test_studio_rolls_out_a_newton_checkpoint(rollout: Rollout) -> None:
     assert engine.get_name() == "newton" and r.control_freq == pytest.approx(30.0)
     assert len(r.ghost_bodies) == 15 and r.root_body not in r.ghost_bodies
     for _ in range(40):  # past the 1 s episode: one reset
-        frame = r.step()
+        r.step()
     assert r.episode >= 1 and r.episodes[0].steps <= 30
-    # The recorded frame is the engine's state: the character's root where Newton has it, the ghost
-    # ref_char_offset from the reference the env tracks.
+    # The last recorded frame is the engine's state (a step that ends an episode records its last pose and
+    # then the reset's start pose): the character's root where Newton has it, the ghost ref_char_offset
+    # from the reference the env tracks.
+    frame = r.history[-1]
     xpos, xmat = r.pose(frame)
     np.testing.assert_allclose(xpos[r.root_body], engine.get_root_pos(r.env.get_char_id())[0].numpy(), atol=2e-5)
     ref = r.env.get_ref_state()["root_pos"][0].numpy()

@@ -10,7 +10,6 @@ STUDIO_UPDATE_SCREENSHOTS=1 writes docs/studio_compare.png and docs/studio_narro
 from __future__ import annotations
 
 import os
-import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,19 +17,13 @@ from pathlib import Path
 import pytest
 
 from mimickit.util.paths import PROJECT_ROOT
-from tests.studio.conftest import StudioProcess, wait_for, write_arg_file
+from tests.studio.conftest import CHROMIUM, StudioProcess, new_page, wait_for, write_arg_file
 
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
 ]
 HIDE_TOAST = "[class*=Notification-root] { display: none !important; }"  # viser's "software WebGL" notice
-# The scene's software WebGL shares the page's main thread (same-origin iframe): on a loaded machine
-# a click can wait for it well past Playwright's default 30 s.
-ACTION_TIMEOUT_MS = 90_000
 
 
 @pytest.fixture(scope="module")
@@ -42,20 +35,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
     s.stop()
 
 
-@pytest.fixture(scope="module")
-def browser() -> Iterator[object]:
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        yield b
-        b.close()
-
-
 def open_page(browser, server: StudioProcess, width: int, height: int):
-    page = browser.new_page(viewport={"width": width, "height": height})
-    page.set_default_timeout(ACTION_TIMEOUT_MS)
-    page.errors = []
-    page.on("pageerror", lambda e: page.errors.append(str(e)))
-    page.goto(server.url)
+    page = new_page(browser, server.url, width, height)
     page.frame_locator("#scene").locator("canvas").first.wait_for(timeout=60_000)
     wait_for(lambda: page.locator("#frame-label").inner_text() != "–", 30, "the scene state on the page")
     return page
@@ -134,6 +115,65 @@ def test_space_steps_after_dragging_the_timeline(browser, server: StudioProcess)
     page.close()
 
 
+def test_quick_arrow_presses_each_move_one_frame(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    server.post("/api/scene/pause")
+    server.post("/api/scene/seek", {"frame": 10})
+    wait_for(lambda: page.locator("#timeline").input_value() == "10", what="the page to show frame 10", page=page)
+    page.locator("#play").focus()
+    for _ in range(10):  # faster than the server answers: each press counted from the frame the page knew
+        page.keyboard.press("ArrowRight")
+    for _ in range(4):
+        page.keyboard.press("ArrowLeft")
+    # A loaded machine's page may stall for seconds between its seeks (the 3D view shares its thread):
+    # wait for the frame the presses make, then check that it stays.
+    wait_for(lambda: state(server)["frame"] == 16, 60, lambda: f"frame 16, at {state(server)['frame']}", page=page)
+    assert wait_for(settled_frame(server), what="the presses' last seek answered") == 16
+    page.close()
+
+
+def test_a_clip_nobody_watches_is_drawn_once_a_second_and_at_full_rate_once_a_page_shows_it(
+    browser, tmp_path: Path
+) -> None:
+    quiet = StudioProcess(tmp_path, None)  # its startup clip plays; no page has opened it
+
+    def updates_per_s(wait) -> float:
+        first = quiet.get("/api/scene/state").json()
+        wait(3.0)
+        last = quiet.get("/api/scene/state").json()
+        assert last["playing"] and last["time"] != first["time"]  # the clock runs either way
+        return (last["updates"] - first["updates"]) / 3.0
+
+    try:
+        assert updates_per_s(time.sleep) <= 1.5  # was the clip's 30 fps: 5% of a core for nobody
+        page = new_page(browser, quiet.url, 1280, 720)
+        wait_for(lambda: page.locator("#frame-label").inner_text() != "–", 60, "the page", page=page)
+        assert updates_per_s(lambda s: page.wait_for_timeout(s * 1000)) >= 5  # CI, loaded: 13.3 of 30
+        page.close()
+    finally:
+        quiet.stop()
+
+
+@pytest.mark.parametrize("size", [(1280, 720), (390, 844)])
+def test_a_rollout_leaves_the_3d_view_half_the_window_and_every_control_on_screen(
+    browser, server: StudioProcess, size: tuple[int, int]
+) -> None:
+    width, height = size
+    page = open_page(browser, server, width, height)
+    r = server.post("/api/scene/load_rollout", {"checkpoint": "data/models/deepmimic_humanoid_demo_model.pt"})
+    assert r.status_code == 200, r.text
+    try:
+        page.locator("#body-error").wait_for(state="visible", timeout=60_000)
+        scene = page.locator("#scene").bounding_box()
+        assert scene["height"] >= height / 2 - 1, scene  # was 249 px of 720 beside the rollout's panel
+        for button in ("#play", "#step", "#export-replay", "#export-video", "#rollout-close"):
+            box = page.locator(button).bounding_box()
+            assert box["x"] >= 0 and box["x"] + box["width"] <= width, (button, box)  # Export MP4 was cut off
+    finally:
+        server.post("/api/scene/rollout/close")
+    page.close()
+
+
 def test_question_mark_lists_every_shortcut(browser, server: StudioProcess) -> None:
     page = open_page(browser, server, 1280, 720)
     dialog = page.locator("#shortcuts")
@@ -201,8 +241,9 @@ def test_narrow_screen_stacks_with_a_visible_3d_view(browser, server: StudioProc
     assert hit() == "CANVAS", f"the centre of the 3D view is a {hit()}, not the canvas"
     runs = page.locator("#runs").bounding_box()
     assert runs["y"] >= box["y"] + box["height"], "the runs panel is not below the 3D view"
-    for row in page.locator("#player .bar").all():
-        assert row.bounding_box()["height"] < 40, "a player bar row wrapped"
+    for button in page.locator("#player button").all():  # the rows wrap: every control on the screen
+        b = button.bounding_box()
+        assert b is None or b["x"] + b["width"] <= 390, f"{button.inner_text()} is cut off"
     assert page.evaluate("document.documentElement.scrollWidth <= innerWidth"), "the page scrolls sideways"
     shot = tmp_path / "studio_narrow.png"
     if os.environ.get("STUDIO_UPDATE_SCREENSHOTS") == "1":
@@ -210,6 +251,32 @@ def test_narrow_screen_stacks_with_a_visible_3d_view(browser, server: StudioProc
     scene_frame(page).add_style_tag(content=HIDE_TOAST)
     time.sleep(1.0)
     page.screenshot(path=str(shot))
+    assert page.errors == []
+    page.close()
+
+
+def test_the_launch_form_is_built_from_the_launch_fields(browser, server: StudioProcess) -> None:
+    """The form's inputs are those of GET /api/runs/fields (studio/runs/launch_fields.py), in its order,
+    each with its help as its tooltip, and what is filled in is what the run is launched with."""
+    fields = server.get("/api/runs/fields").json()
+    page = open_page(browser, server, 1280, 720)
+    short = server.runs_dir / "args" / "short.txt"
+    page.wait_for_selector("#arg-file option[value$='short.txt']", state="attached")
+    ids = page.eval_on_selector_all("#launch-fields select, #launch-fields input", "es => es.map((e) => e.id)")
+    assert ids == [f["widget"]["id"] for f in fields]
+    assert [page.locator(f"#{i}").get_attribute("title") for i in ids] == [f["help"] for f in fields]
+    page.locator("#launch-box summary").click()
+    page.locator("#arg-file").select_option(str(short))
+    typed = {"run-name": "every box", "num-envs": "3", "max-samples": "96", "max-hours": "0.5", "rand-seed": "5"}
+    for element_id, text in {**typed, "num-cpus": "2", "num-gpus": "0"}.items():
+        page.locator(f"#{element_id}").fill(text)
+    page.locator("#launch-button").click()
+    run = wait_for(
+        lambda: next((r for r in server.get("/api/runs").json() if r["name"] == "every box"), None), 30, "the run"
+    )
+    launched = {"num_envs": 3, "max_samples": 96, "max_hours": 0.5, "rand_seed": 5, "num_cpus": 2, "num_gpus": 0}
+    assert run["config"] == {"arg_file": str(short), **launched}
+    wait_for(lambda: server.get(f"/api/runs/{run['id']}").json()["status"] == "finished", 30, "the run to end")
     assert page.errors == []
     page.close()
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from mimickit.run_folder import RunFolder, is_event_row
+from mimickit.learning.run_folder import RunFolder, is_event_row
 from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for, write_arg_file
 from tests.studio.ray_head import free_port, local_ray_head
 
@@ -56,8 +56,8 @@ def training_rows(studio: StudioProcess, run_id: int) -> list[dict]:
 
 def test_stop_waits_the_studio_grace_period_not_rays_default(ray_head: str, tmp_path: Path) -> None:
     """A job that needs 5 s after SIGTERM (a checkpoint) finishes it: Ray alone would SIGKILL after 3 s."""
-    from studio.executors import JobState, Launch
-    from studio.executors.ray import RayExecutor
+    from studio.runs.executors import JobState, Launch
+    from studio.runs.executors.ray import RayExecutor
 
     executor = RayExecutor(ray_head, stop_timeout_s=30)
     script = "import signal,time,pathlib\n"

@@ -9,13 +9,14 @@ from pathlib import Path
 
 import pytest
 
+from mimickit.envs.deepmimic_rewards import TERM_NAMES
 from mimickit.util.paths import PROJECT_ROOT
 from tests.studio.conftest import REAL_TRAINER, StudioProcess, wait_for
 
 pytestmark = pytest.mark.integration
 
 ARG_FILE = PROJECT_ROOT / "args" / "deepmimic_humanoid_demo_ppo_args.txt"
-TERMS = {"pose", "vel", "root_pose", "root_vel", "key_pos"}
+TERMS = set(TERM_NAMES)  # every DeepMimic term (deepmimic_rewards.py), so a new one needs no edit here
 RUN_TIMEOUT_S = 400.0  # ~2 minutes on two shared cores; more when other work runs beside it
 
 

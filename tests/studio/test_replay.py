@@ -22,8 +22,8 @@ import zstandard
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.motion import load_motion, save_motion
 from mimickit.util.paths import PROJECT_DATA_DIR
-from studio.replay import export_clip_replay, export_policy_replay, frame_stride
-from studio.rollout import source_for_checkpoint
+from studio.scene.replay import export_clip_replay, export_policy_replay, frame_stride
+from studio.scene.rollout import source_for_checkpoint
 from tests.conftest import DEMO_CLIP, PROJECT_HUMANOID
 from tests.studio.conftest import StudioProcess
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from mimickit.util.paths import PROJECT_ROOT
-from studio.replay import export_clip_replay
+from studio.scene.replay import export_clip_replay
 from tests.conftest import DEMO_CLIP, PROJECT_HUMANOID
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")

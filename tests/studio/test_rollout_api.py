@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 
 from mimickit.anim.motion import load_motion, save_motion
+from mimickit.envs.deepmimic_rewards import TERM_NAMES
+from mimickit.learning.checkpoint import read_checkpoint, split_train_state
 from mimickit.util.paths import PROJECT_DATA_DIR
 from tests.studio.conftest import ENV_YAML, StudioProcess, wait_for, write_arg_file, write_checkpoint_dir
 
 pytestmark = pytest.mark.integration
 
-TERMS = {"pose", "vel", "root_pose", "root_vel", "key_pos"}
+TERMS = set(TERM_NAMES)  # every DeepMimic term (deepmimic_rewards.py), so a new one needs no edit here
 
 
 def state(studio: StudioProcess) -> dict:
@@ -42,8 +44,10 @@ def test_rollout_of_a_checkpoint(studio: StudioProcess, demo_checkpoint: Path) -
         # An untrained policy falls: episodes end and start again by themselves.
         wait_for(lambda: state(studio)["rollout"]["episodes"], 20, "an episode to end and reset")
 
+        # Played: how fast, measured (a slow machine shows below 1); paused: none.
+        assert 0 < state(studio)["rollout"]["real_time_factor"] < 5
         paused = studio.post("/api/scene/pause").json()  # the clip player's commands drive the rollout
-        assert not paused["playing"]
+        assert not paused["playing"] and paused["rollout"]["real_time_factor"] is None
         step = paused["rollout"]["step"]
         assert studio.post("/api/scene/step", {"frames": 2}).json()["rollout"]["step"] == step + 2
         back = studio.post("/api/scene/seek", {"frame": 3}).json()
@@ -59,7 +63,23 @@ def test_rollout_of_a_checkpoint(studio: StudioProcess, demo_checkpoint: Path) -
     finally:
         closed = studio.post("/api/scene/rollout/close").json()
     assert closed["mode"] == "clip"
+    # The clip the label names is drawn again (the view was empty after a close until a clip was loaded).
+    stepped = studio.post("/api/scene/step", {"frames": 1}).json()  # a state published after the close
+    assert stepped["clip"] and stepped["drawn"] == stepped["char"]
     assert studio.get("/api/scene/rollout/history").status_code == 409
+
+
+def test_the_rollout_says_what_training_its_weights_have_seen(studio: StudioProcess, demo_checkpoint: Path) -> None:
+    shipped = PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_demo_model.pt"
+    _, train_state = split_train_state(read_checkpoint(shipped, "cpu"))
+    r = studio.post("/api/scene/load_rollout", {"checkpoint": str(shipped), "play": False})
+    assert r.status_code == 200, r.text
+    info = r.json()["rollout"]
+    assert (info["iteration"], info["samples"]) == (train_state["iteration"], train_state["samples"])
+    assert info["samples"] > 1_000_000  # trained: not a fresh agent's zeros
+    fresh = studio.post("/api/scene/load_rollout", {"checkpoint": str(demo_checkpoint), "play": False}).json()
+    assert (fresh["rollout"]["iteration"], fresh["rollout"]["samples"]) == (0, 0)  # saved before any training
+    studio.post("/api/scene/rollout/close")
 
 
 def test_clip_replaces_the_rollout(studio: StudioProcess, demo_checkpoint: Path) -> None:
@@ -123,6 +143,10 @@ def test_inspect_checkpoints(studio: StudioProcess, demo_checkpoint: Path, misfi
     assert char["fits"] and char["action_size"] == 28
 
     assert studio.get("/api/checkpoints/inspect", params={"path": "/etc/passwd"}).status_code == 403
+    for key, odd in (("env_config", studio.runs_dir), ("engine_config", studio.runs_dir / "registry.sqlite")):
+        given = {"env_config": "data/envs/deepmimic_humanoid_env.yaml", key: str(odd)}  # a folder, the registry
+        r = studio.get("/api/checkpoints/inspect", params={"path": str(demo_checkpoint), **given})
+        assert r.status_code == 400 and r.json()["detail"].startswith(key), r.text
     fake = studio.runs_dir / "fake.pt"
     fake.write_text(json.dumps({"iteration": 1}))
     r = studio.get("/api/checkpoints/inspect", params={"path": str(fake)})

@@ -16,8 +16,8 @@ import torch
 
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_ROOT
-from studio.rollout import Frame, Rollout, RolloutPlayer, source_for_checkpoint
-from studio.rollout_pair import RolloutPair
+from studio.scene.rollout import Frame, Rollout, RolloutPlayer, source_for_checkpoint
+from studio.scene.rollout_pair import RolloutPair
 from tests.studio.conftest import ENV_YAML, write_checkpoint_dir
 
 pytestmark = pytest.mark.slow

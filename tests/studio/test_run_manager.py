@@ -13,12 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from mimickit.run_folder import EndState, RunFolder
+from mimickit.learning.run_folder import EndState, RunFolder
 from mimickit.util.paths import PROJECT_ROOT
-from studio.metrics import last_rows, read_rows
-from studio.registry import Registry, Run, RunStatus
-from studio.run_summary import run_summary
-from studio.runs import RunManager, end_status, train_command
+from studio.runs.manager import RunManager, end_status, train_command
+from studio.runs.metrics import last_rows, read_rows
+from studio.runs.registry import Registry, Run, RunStatus
+from studio.runs.summary import run_summary
 from studio.settings import Settings
 from tests.studio.conftest import FAKE_TRAINER, wait_for, write_arg_file
 
@@ -30,9 +30,8 @@ def settings_for(tmp_path: Path) -> Settings:
 
 
 def test_train_command_is_data() -> None:
-    argv = train_command(
-        ["mimickit", "train"], "args/a.txt", "/r/1", num_envs=4, rand_seed=0, model_file="/r/1/model.pt"
-    )
+    config = {"arg_file": "args/a.txt", "rand_seed": 0, "num_envs": 4, "model_file": "/r/1/model.pt", "num_cpus": 2}
+    argv = train_command(["mimickit", "train"], config, "/r/1")
     assert argv == ["mimickit", "train", "--arg_file", "args/a.txt", "--out_dir", "/r/1",
                     "--num_envs", "4", "--rand_seed", "0", "--model_file", "/r/1/model.pt"]  # fmt: skip
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from studio.clip_pose import pose_clip
-from studio.scene import support_height
+from studio.scene.clip_pose import pose_clip
+from studio.scene.view import support_height
 from tests.studio.conftest import StudioProcess, wait_for
 
 pytestmark = pytest.mark.integration

@@ -9,7 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from studio.scene_thread import SceneThread, SceneTimeout
+from studio.scene.thread import SceneThread, SceneTimeout
 from tests.studio.conftest import StudioProcess
 
 WALK = "data/motions/humanoid/humanoid_walk.pkl"

@@ -8,10 +8,9 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.studio.conftest import StudioProcess, write_arg_file
-from tests.studio.test_page_browser import CHROMIUM, open_page
+from tests.studio.conftest import CHROMIUM, StudioProcess, write_arg_file
+from tests.studio.test_page_browser import open_page
 
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (apt-get install chromium)"),
@@ -25,14 +24,6 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StudioProcess]:
     s = StudioProcess(runs_dir, None)  # the project's own data: the demo clip plays at start-up
     yield s
     s.stop()
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[object]:
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox", "--disable-gpu"])
-        yield b
-        b.close()
 
 
 def test_export_mp4_of_the_clip_gives_a_download_link(browser, server: StudioProcess) -> None:

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from mimickit.util.paths import PROJECT_DATA_DIR
+from studio.jobs.videos import VideoJobs
 from studio.settings import Settings
-from studio.videos import VideoJobs
 from tests.studio.conftest import StudioProcess, wait_for
 from tests.studio.test_evals_api import processes_in
 from tests.studio.test_stream import EventReader
@@ -62,6 +62,10 @@ def test_a_clip_video_of_the_demo_clip(studio: StudioProcess, tmp_path: Path) ->
     assert len(video.content) == done["bytes"]
     check_mp4(video.content, tmp_path / "clip.mp4", 30, 160, 120)  # 1 s at the clip's 30 Hz control rate
     assert any(j["id"] == job["id"] for j in studio.get("/api/videos").json())
+    # The routes every job kind shares: an ended job is removed with its folder.
+    assert studio.client.delete(f"/api/videos/{job['id']}").status_code == 204
+    assert not folder.exists() and studio.get(f"/api/videos/{job['id']}").status_code == 404
+    assert all(j["id"] != job["id"] for j in studio.get("/api/videos").json())
 
 
 def test_a_policy_video_of_the_shipped_model_pushed_by_the_stream(studio: StudioProcess, tmp_path: Path) -> None:

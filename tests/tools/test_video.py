@@ -93,6 +93,17 @@ def test_video_argument_errors(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     assert "error: --motion_file: file not found: data/motions/no_such_clip.pkl" in capsys.readouterr().err
 
 
+def test_the_cli_renders_at_the_studios_size_unless_told(tmp_path: Path) -> None:
+    from mimickit import cli
+
+    out = tmp_path / "clip.mp4"
+    args = ["video", "--motion", str(DEMO_CLIP), "--char", str(PROJECT_HUMANOID), "--out", str(out), "--seconds", "0.1"]
+    assert cli.main(args) == 0
+    assert decode(out)[0]["size"] == (640, 480)  # the studio's Export MP4 (was 320x240)
+    assert cli.main([*args, "--width", "64", "--height", "48"]) == 0
+    assert decode(out)[0]["size"] == (64, 48)
+
+
 @pytest.mark.slow
 def test_a_character_without_its_meshes_is_drawn_with_bones_and_framed(test_data: Path, tmp_path: Path) -> None:
     """MimicKit's PI+ (0.39 m root height) has no mesh files in its data: without bones only its foot boxes

@@ -29,10 +29,12 @@ def fail(msg: str) -> bytes:
     raise MimicKitError(msg)
 
 
-def sleep_forever(pid_file: str) -> bytes:
+def sleep_long(pid_file: str) -> bytes:
+    """Sleeps 20 budgets of 3 s, then leaves a mark: a child the guard failed to stop finishes."""
     Path(pid_file).write_text(str(os.getpid()))
-    time.sleep(600)
-    return b""
+    time.sleep(60)
+    Path(pid_file).with_suffix(".finished").touch()
+    return b"finished"
 
 
 def allocate(mb: int) -> bytes:
@@ -77,11 +79,12 @@ def test_other_exceptions_are_one_line_naming_the_label() -> None:
 
 
 def test_time_budget_kills_the_child(tmp_path: Path) -> None:
+    """The guard stops the child and says why; checked by what happened (the child is gone before it could
+    finish), not by how long the call took (benchmarks/stop_latency.py measures that)."""
     pid_file = tmp_path / "pid"
-    t0 = time.monotonic()
     with pytest.raises(MimicKitError, match=r"^slow.pkl took longer than 3 s to parse$"):
-        run_guarded(sleep_forever, str(pid_file), label="slow.pkl", timeout_s=3)
-    assert time.monotonic() - t0 < 15
+        run_guarded(sleep_long, str(pid_file), label="slow.pkl", timeout_s=3)
+    assert not pid_file.with_suffix(".finished").exists()
     pid = int(pid_file.read_text())
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)

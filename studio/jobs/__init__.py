@@ -1,0 +1,2 @@
+"""Background jobs (evals, video renders): one queue and worker per kind, each job a `mimickit`
+child process."""

@@ -1,0 +1,719 @@
+"""Live rollouts: a checkpoint's deterministic policy driving one env at real time, on either engine.
+
+`Rollout` is the simulation: the env built from a run's copied configs (`env_config.yaml`,
+`engine_config.yaml`, `agent_config.yaml` in its out_dir; `data_dir` from its `args.json`) with one env
+and `visualize=True`, so that the DeepMimic env adds its reference character (the "ghost", visual
+only) to the scene and poses it from the clip every step. It is drawn through the engine's
+`mujoco_view`: a MuJoCo model of the scene (the MuJoCo engine's own, a MuJoCo copy for Newton) and the
+env's MjData, the character's and the ghost's bodies found by the env's object ids. Each step is
+recorded in a ring buffer (qpos, reward, each unweighted reward term), the last `HISTORY_S` seconds;
+an episode that ends is reset at once; a newer checkpoint file (polled mtime) is loaded and starts a
+new episode.
+
+`RolloutPlayer` runs a `Rollout` on the studio's scene thread at the env's control rate (× speed) and draws it
+in the studio's scene. Its commands mirror the clip player's (play, pause, step, seek, configure), so
+the REST scene commands and the keys drive whichever is loaded: the timeline is the recorded history;
+seeking or stepping back shows a recorded frame (the simulation waits); play goes on from the frame
+shown, through the recorded history to the live end, then simulating; step at the live end simulates
+one more step. The state's reward, terms and episode figures are those of the frame shown (`latest`:
+the live end's). An A/B rollout gives the player a `studio.scene.rollout_pair.RolloutPair`: B steps with A
+(frame i of both histories is one moment), is drawn in a lane behind A, and its figures of the same
+frame are the state's `b` and the history rows' `b`.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections import deque
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Protocol
+
+import mujoco
+import numpy as np
+import torch
+
+from mimickit.envs.viewable import TracksReference
+from mimickit.learning.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, RunFolder
+from mimickit.runner.inputs import RunInputs
+from mimickit.runner.policy import load_policy
+from mimickit.util.errors import MimicKitError
+from mimickit.util.paths import DataPaths
+from mimickit.util.warn import collect_warnings
+from studio.runs.checkpoints import MOTION_FILE, configs_beside
+from studio.scene.playable import Playable, command
+from studio.scene.thread import SceneThread
+from studio.scene.view import BODY_ERROR_SCALE_M, BODY_ERROR_STOPS, SUPPORT_WINDOW_S, StudioScene, error_colour
+
+HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
+RATE_WINDOW = 60  # frames the real-time factor is measured over (2 s at 30 Hz)
+RELOAD_POLL_S = 1.0  # how often the checkpoint's mtime is checked
+MAX_STEP_FRAMES = 300  # one `step` command simulates at most this many steps
+MIN_SPEED, MAX_SPEED = 0.05, 4.0
+PUBLISHED_ROWS = 600  # history rows published with each state (`Playable.feed`): 20 s at 30 Hz
+
+
+@dataclass
+class RolloutSource:
+    """What a rollout is built from."""
+
+    checkpoint: Path
+    env_config: Path
+    agent_config: Path
+    engine_config: Path | None = None
+    data_dir: Path | None = None
+    run_id: int | None = None
+    run_name: str | None = None
+    motion_file: Path | None = None  # replaces the env config's clip (a shipped model's `--motion_file`)
+
+    def inputs(self) -> RunInputs:
+        """As `mimickit test` would resolve them; `data/...` names are found in the run's data folder."""
+        return RunInputs(
+            env_file=str(self.env_config),
+            engine_file=str(self.engine_config) if self.engine_config else None,
+            agent_file=str(self.agent_config),
+            motion_file=str(self.motion_file) if self.motion_file else None,
+            data_paths=DataPaths(self.data_dir),
+        )
+
+    def missing_clip(self) -> str | None:
+        """The clip or dataset the env plays, as its config names it, when the data folders lack it
+        (MimicKit's clips are not shipped: a model trained on one needs the studio's `--data-dir`)."""
+        if self.motion_file is not None:
+            return None  # an arg file's `--motion_file`: found when the source was read
+        return _missing_clip(self.env_config, self.engine_config, self.data_dir, _mtime(self.env_config))
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "checkpoint": str(self.checkpoint),
+            "env_config": str(self.env_config),
+            "agent_config": str(self.agent_config),
+            "engine_config": str(self.engine_config) if self.engine_config else None,
+            "motion_file": str(self.motion_file) if self.motion_file else None,
+            "data_dir": str(self.data_dir) if self.data_dir else None,
+            "run_id": self.run_id,
+            "run_name": self.run_name,
+        }
+
+
+def _mtime(path: Path) -> int:
+    try:
+        return path.stat().st_mtime_ns
+    except OSError:
+        return 0
+
+
+@functools.lru_cache(maxsize=256)
+def _missing_clip(env: Path, engine: Path | None, data_dir: Path | None, _mtime_ns: int) -> str | None:
+    """`RolloutSource.missing_clip`, once per config file version (the checkpoint list asks for each)."""
+    from mimickit.envs.env_builder import load_env_configs  # every env's module: loaded when first asked
+
+    try:
+        env_cfg, _ = load_env_configs(env, engine)
+    except (MimicKitError, OSError):
+        return None  # a broken config: building the rollout says what is wrong
+    motion = getattr(env_cfg, "motion_file", None)
+    return motion if motion and not DataPaths(data_dir).resolve(motion).is_file() else None
+
+
+def source_for_checkpoint(
+    checkpoint: Path,
+    *,
+    env_config: Path | None = None,
+    agent_config: Path | None = None,
+    engine_config: Path | None = None,
+    data_dir: Path | None = None,
+    run_id: int | None = None,
+    run_name: str | None = None,
+    fallback_data_dir: Path | None = None,
+) -> RolloutSource:
+    """The configs a trainer copied beside `checkpoint` (its folder, or the parent of `int_models/`) or
+    its arg file names, unless given (the arg file's `--motion_file` goes with its env config only);
+    MimicKitError when there are none. Its data folder: `data_dir`, else the run's, else
+    `fallback_data_dir` (the studio's `--data-dir`)."""
+    beside = configs_beside(checkpoint)
+    motion = Path(beside[MOTION_FILE]) if env_config is None and MOTION_FILE in beside else None
+    env = env_config or (Path(beside[ENV_CONFIG_FILE]) if ENV_CONFIG_FILE in beside else None)
+    agent = agent_config or (Path(beside[AGENT_CONFIG_FILE]) if AGENT_CONFIG_FILE in beside else None)
+    engine = engine_config or (Path(beside[ENGINE_CONFIG_FILE]) if ENGINE_CONFIG_FILE in beside else None)
+    if env is None or agent is None:
+        missing = " and ".join(n for n, v in (("env_config", env), ("agent_config", agent)) if v is None)
+        raise MimicKitError(
+            f"{checkpoint}: no {missing} beside it (a run folder has env_config.yaml and agent_config.yaml);"
+            f" name the {missing} to roll it out"
+        )
+    if data_dir is None and beside:
+        data_dir = run_data_dir(Path(beside[ENV_CONFIG_FILE]).parent)
+    data_dir = data_dir or fallback_data_dir
+    return RolloutSource(checkpoint, env, agent, engine, data_dir, run_id, run_name, motion)
+
+
+def run_data_dir(run_dir: Path) -> Path | None:
+    """`--data_dir` of the run, from the args.json the trainer wrote: its effective value (resolved
+    against the trainer's working folder), or the top-level list of older run folders."""
+    record = RunFolder(run_dir).read_args()
+    if record is None:
+        return None
+    effective = record.get("effective")
+    value = effective.get("data_dir") if isinstance(effective, dict) else record.get("data_dir")
+    if isinstance(value, list):
+        value = value[0] if value else None
+    return Path(value) if isinstance(value, str) and value else None
+
+
+@dataclass(slots=True)
+class Frame:
+    """One recorded step. `reward`/`terms` are None for the pose an episode starts from."""
+
+    step: int  # simulation steps since the rollout was built
+    episode: int
+    episode_step: int
+    qpos: np.ndarray
+    reward: float | None
+    terms: dict[str, float] | None
+    episode_return: float
+    done: int = 0  # DoneFlags of the step that ended an episode (1 fail, 2 success, 3 time)
+    low_z: float | None = None  # lowest body origin of the followed figure (see RolloutPlayer._height)
+    body_error: np.ndarray | None = None  # [J] metres, each body's tracking error (Rollout.body_names)
+    waiting: bool = False  # an ended episode's last pose, held while an A/B partner still runs
+
+
+@dataclass
+class EpisodeSummary:
+    episode: int
+    steps: int
+    ret: float
+    done: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {"episode": self.episode, "steps": self.steps, "return": self.ret, "done": self.done}
+
+
+class Rollout:
+    """The policy of `source.checkpoint` in one env (see the module docstring). Not thread-safe."""
+
+    def __init__(self, source: RolloutSource, history_s: float = HISTORY_S) -> None:
+        self.source = source
+        with collect_warnings():  # dropped, as before; not `catch_warnings`, which swaps every thread's filters
+            # MimicKitError (one line) when the checkpoint does not fit
+            self.env, self.agent = load_policy(source.inputs(), source.checkpoint, visualize=True)
+        engine = self.env.engine
+        view = engine.mujoco_view(0)  # every engine draws through a MuJoCo model of its scene
+        self.model: mujoco.MjModel = view.model
+        self._scratch = mujoco.MjData(self.model)  # for drawing recorded frames
+        self.dt = float(engine.get_timestep())
+        # The character's and the ghost's bodies in that model, by the env's object ids.
+        self.root_body = int(view.objects[self.env.get_char_id()].body_ids[0])
+        ghost_id = self.env.get_ref_char_id()
+        self.ghost_bodies = view.objects[ghost_id].body_ids if ghost_id is not None else np.zeros(0, dtype=np.int64)
+        self.ghost_root = int(self.ghost_bodies[0]) if len(self.ghost_bodies) else None
+        # Height follow tracks the reference (it may climb; the policy may fall), else the character.
+        char_bodies = np.asarray(view.objects[self.env.get_char_id()].body_ids)
+        self.follow_bodies = self.ghost_bodies if len(self.ghost_bodies) else char_bodies
+        self.char_bodies = char_bodies  # the character's body j -> its MuJoCo body id
+        # What an env tracking clips offers (mimickit.envs.viewable): the per-body error against the
+        # reference the ghost shows, its reward terms' weights, the clips it plays (resolved paths).
+        tracking = self.env if isinstance(self.env, TracksReference) else None
+        # Per-body error only where the reward tracks the ghost's pose (not AMP's style, nor its task envs').
+        posed = tracking is not None and tracking.tracks_pose and ghost_id is not None
+        self.body_names: list[str] = self.env.char_model.get_body_names() if posed else []
+        self.reward_weights: dict[str, float] = tracking.reward_weights if tracking else {}
+        self.motion_files: list[str] | None = list(tracking.motion_lib.motion_files) if tracking else None
+        self.history: deque[Frame] = deque(maxlen=max(2, round(history_s / self.dt)))
+        st = source.checkpoint.stat()
+        self.checkpoint_mtime_ns, self.checkpoint_mtime = st.st_mtime_ns, st.st_mtime
+        self.reloads = 0
+        self.error: str | None = None
+        self.steps = 0
+        self.episode = -1
+        self.episodes: deque[EpisodeSummary] = deque(maxlen=100)
+        self.ended = 0  # the DoneFlags of an episode that ended without a reset (`step(auto_reset=False)`)
+        self.reset()
+
+    @property
+    def control_freq(self) -> float:
+        return 1.0 / self.dt
+
+    def reset(self) -> None:
+        """A new episode (the env's own reset: reference-state init from the clip)."""
+        with torch.no_grad():
+            self._obs, _ = self.env.reset()
+        self.episode += 1
+        self.episode_step = 0
+        self.episode_return = 0.0
+        self.ended = 0
+        self._record(None, None, 0)
+
+    def restart(self) -> None:
+        """Forget the recorded steps and episodes and start again from episode 0 (an A/B pair's first
+        start replaces the one each side recorded when it was built)."""
+        self.history.clear()
+        self.episodes.clear()
+        self.episode = -1
+        self.reset()
+
+    def step(self, auto_reset: bool = True) -> Frame:
+        """One control step of the deterministic policy; an episode that ends is reset at once, or with
+        `auto_reset` False left ended (`ended`: its done flag) until `reset`."""
+        with torch.no_grad():
+            action = self.agent.compute_action(self._obs, deterministic=True)
+            obs, reward, done, info = self.env.step(action)
+        terms = {k: float(v.reshape(-1)[0]) for k, v in (info.get("reward_terms") or {}).items()}
+        r = float(reward.reshape(-1)[0])
+        d = int(done.reshape(-1)[0])
+        self.steps += 1
+        self.episode_step += 1
+        self.episode_return += r
+        frame = self._record(r, terms, d)
+        if d:
+            self.episodes.append(EpisodeSummary(self.episode, self.episode_step, self.episode_return, d))
+            if auto_reset:
+                self.reset()
+            else:
+                self.ended = d
+        else:
+            self._obs = obs
+        return frame
+
+    def hold(self) -> Frame:
+        """One control step of waiting after an ended episode: its last pose again, no reward (an A/B
+        partner still runs; both histories keep one frame per step)."""
+        self.steps += 1
+        frame = replace(self.history[-1], step=self.steps, reward=None, terms=None, waiting=True)
+        self.history.append(frame)
+        return frame
+
+    def reload_if_newer(self, reset: bool = True) -> bool:
+        """Load the checkpoint again when its file changed; True when new weights were loaded (and, with
+        `reset`, a new episode started). A file that no longer fits keeps the old weights and sets `error`."""
+        try:
+            st = self.source.checkpoint.stat()
+        except OSError:
+            return False
+        if st.st_mtime_ns == self.checkpoint_mtime_ns:
+            return False
+        # This version is tried once, fitting or not.
+        self.checkpoint_mtime_ns, self.checkpoint_mtime = st.st_mtime_ns, st.st_mtime
+        try:
+            self.agent.load(self.source.checkpoint)
+        except MimicKitError as e:
+            self.error = f"kept the previous weights: {e}"
+            return False
+        self.agent.eval()
+        self.error = None
+        self.reloads += 1
+        if reset:
+            self.reset()
+        return True
+
+    def pose(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """World xpos [nbody, 3] and xmat [nbody, 9] of a recorded frame."""
+        d = self._scratch
+        d.qpos[:] = frame.qpos
+        mujoco.mj_kinematics(self.model, d)
+        return d.xpos.copy(), d.xmat.copy()
+
+    def close(self) -> None:
+        self.env.engine.close()  # every engine has one (mimickit.engines.engine.Engine)
+
+    def _record(self, reward: float | None, terms: dict[str, float] | None, done: int) -> Frame:
+        qpos = self.env.engine.mujoco_view(0).data.qpos.copy()  # the character and the ghost of this step
+        frame = Frame(self.steps, self.episode, self.episode_step, qpos, reward, terms, self.episode_return, done)
+        if self.body_names:  # only for an env that tracks a reference (see __init__)
+            frame.body_error = self.env.body_pos_errors()[0].cpu().numpy().astype(np.float64)
+        self.history.append(frame)
+        return frame
+
+    def body_error_colours(self, frame: Frame) -> dict[int, float]:
+        """{MuJoCo body id of the character: its error in metres} of `frame` (empty without a reference),
+        what `StudioScene.colour_bodies` takes."""
+        if frame.body_error is None:
+            return {}
+        return {int(b): float(e) for b, e in zip(self.char_bodies, frame.body_error, strict=True)}
+
+    def body_error_json(self, frame: Frame) -> dict[str, Any] | None:
+        """The per-body tracking error of `frame` for the scene state (None without a reference)."""
+        if frame.body_error is None:
+            return None
+        return {
+            "bodies": self.body_names,
+            "errors_m": [round(float(e), 5) for e in frame.body_error],
+            # each body's colour in the 3D view, for the page's bars: the formula lives only in view.py
+            "colours": [list(error_colour(e)) for e in frame.body_error],
+            "mean_m": round(float(frame.body_error.mean()), 5),  # = the paper's position error
+            "scale_m": BODY_ERROR_SCALE_M,
+            "stops": [list(c) for c in BODY_ERROR_STOPS],
+            "measure": "position error per body vs the reference: root-relative, the root's own global",
+        }
+
+
+class Lockstep(Protocol):
+    """What the player drives of an A/B rollout (`studio.scene.rollout_pair.RolloutPair`, which builds on
+    `Rollout`: declared here so that this module does not import it back)."""
+
+    a: Rollout
+    b: Rollout
+
+    @property
+    def sides(self) -> tuple[Rollout, Rollout]: ...
+
+    def reset(self) -> None: ...
+
+    def step(self) -> None: ...
+
+    def reload_if_newer(self) -> bool: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass
+class RolloutState:
+    playing: bool = False
+    speed: float = 1.0
+    follow: bool = True
+    view: int | None = None  # index into the history being shown; None: the live end
+    updates: int = 0  # scene updates sent
+    height: float = 0.0  # how far the ground is lowered when following (see RolloutPlayer._height)
+    root_pos: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+class RolloutPlayer(Playable):
+    """A `Rollout` stepped by the scene thread `owner` and drawn in `scene` (None: not drawn, for tests)."""
+
+    def __init__(
+        self,
+        rollout: Rollout,
+        scene: StudioScene | None,
+        owner: SceneThread | None = None,
+        *,
+        play: bool = False,
+        pair: Lockstep | None = None,
+    ) -> None:
+        """`pair`: an A/B rollout whose A is `rollout`; B is stepped in lockstep and drawn beside it."""
+        super().__init__(owner)
+        if pair is not None and pair.a is not rollout:
+            raise ValueError("the A/B pair's A must be the rollout shown")
+        self.rollout = rollout
+        self.pair = pair
+        self.scene = scene
+        self.state = RolloutState(playing=play)
+        self._ground = np.inf  # the lowest `Frame.low_z` drawn so far (see _height)
+        self._rows: deque[dict[str, Any]] = deque(maxlen=PUBLISHED_ROWS)  # see _published_rows
+        self._played: deque[float] = deque(maxlen=RATE_WINDOW)  # when the last frames were played
+        if scene is not None:
+            # B's character is drawn only by its body meshes (A's also by mjviser): all of them, always.
+            b = (pair.b.model, pair.b.ghost_bodies, pair.b.char_bodies) if pair is not None else None
+            scene.show_rollout(*_figure(rollout), partner=b)
+        now = time.monotonic()
+        self._next_t, self._next_poll = now, now + RELOAD_POLL_S
+        self._draw()
+
+    # -- commands (any thread: run on the scene thread) ----------------------------------------------
+
+    @command
+    def play(self) -> None:
+        """Play on from the frame shown: through the recorded history first (at the control rate),
+        then simulating from the live end."""
+        if not self.state.playing:
+            self._next_t = time.monotonic()
+            self._played.clear()
+        self.state.playing = True
+        self._changed()
+
+    @command
+    def step(self, frames: int = 1) -> None:
+        """Pause; forward through the recorded history, simulating at its live end; back for frames < 0."""
+        self.state.playing = False
+        hist = self.rollout.history
+        if frames < 0:
+            self.state.view = max(0, self._shown_index() + frames)
+        else:
+            for _ in range(min(frames, MAX_STEP_FRAMES)):
+                i = self._shown_index()
+                if i < len(hist) - 1:
+                    self.state.view = i + 1
+                else:
+                    self._simulate()
+                    self.state.view = None
+            if self.state.view is not None and self.state.view >= len(hist) - 1:
+                self.state.view = None
+        self._draw()
+
+    @command
+    def seek(self, *, frame: int | None = None, time_s: float | None = None) -> None:
+        """Show a recorded frame (pauses): `frame` indexes the history, `time_s` is rollout time."""
+        hist = self.rollout.history
+        if frame is None:  # the last frame at or before that step (an episode's end and the next
+            step = round((time_s or 0.0) / self.rollout.dt)  # episode's start share a step number)
+            frame = max([0, *(i for i, f in enumerate(hist) if f.step <= step)])
+        self.state.playing = False
+        i = max(0, min(int(frame), len(hist) - 1))
+        self.state.view = None if i == len(hist) - 1 else i
+        self._draw()
+
+    @command
+    def configure(self, *, speed: float | None = None, loop: bool | None = None, follow: bool | None = None) -> None:
+        if speed is not None:
+            self.state.speed = min(max(float(speed), MIN_SPEED), MAX_SPEED)
+        if follow is not None:
+            self.state.follow = bool(follow)
+            self._draw()
+        self._changed()
+
+    @command
+    def reset(self) -> None:
+        """Start a new episode now (an A/B pair: both, from one clip state)."""
+        (self.pair or self.rollout).reset()
+        self.state.view = None
+        self._draw()
+
+    @command
+    def close(self) -> None:
+        self.state.playing = False
+        (self.pair or self.rollout).close()
+
+    @property
+    def sides(self) -> tuple[Rollout, ...]:
+        """The rollouts shown: A alone, or A and B."""
+        return self.pair.sides if self.pair is not None else (self.rollout,)
+
+    def plays_from(self, folder: Path) -> bool:
+        """Whether a checkpoint rolled out lies in `folder` (a run folder about to go)."""
+        folder = Path(folder).resolve()
+        return any(r.source.checkpoint.resolve().is_relative_to(folder) for r in self.sides)
+
+    # -- reading ------------------------------------------------------------------------------------
+
+    def _snapshot(self) -> dict[str, Any]:
+        """The rollout's state, with the clip player's keys (frame/num_frames is the history)."""
+        r, s = self.rollout, self.state
+        i = self._shown_index()
+        return {
+            "mode": "rollout",
+            "clip": None,
+            "char": None,
+            "num_frames": len(r.history),
+            "fps": r.control_freq,
+            "duration": len(r.history) * r.dt,
+            "frame": i,
+            "time": r.history[i].step * r.dt,
+            "playing": s.playing,
+            "speed": s.speed,
+            "loop": True,
+            "follow": s.follow,
+            "updates": s.updates,
+            "root_pos": list(s.root_pos),
+            "contacts": {},
+            "rollout": self._rollout_json(i),
+        }
+
+    def _rollout_json(self, i: int) -> dict[str, Any]:
+        """The state's `rollout`: A's source and figures of the frame shown (a history frame while
+        scrubbed back, as the label shows it), B's of the same frame, and the live end's (`latest`)."""
+        r, s = self.rollout, self.state
+        shown = r.history[i]
+        live = self._last_with_terms(len(r.history) - 1)  # an episode's first frame has none
+        return {
+            **_side_json(r, i),  # source, reloads, error; episode, reward, terms, body error, waiting
+            "control_freq": r.control_freq,
+            "real_time_factor": self._real_time_factor(),
+            "step": r.steps,
+            "live": s.view is None,
+            "latest": {  # the live end, the newest simulated step
+                "step": r.history[-1].step,
+                "episode": r.history[-1].episode,
+                "episode_step": r.history[-1].episode_step,
+                "episode_return": r.history[-1].episode_return,
+                "reward": live.reward if live else None,
+                "reward_terms": live.terms if live else {},
+            },
+            "b": _side_json(self.pair.b, i) if self.pair is not None else None,  # B at the same frame
+            "figures": self.scene.figures() if self.scene is not None else [],  # A/B: both, as drawn
+            "follow_height": s.height,
+            "reward_weights": r.reward_weights,
+            "motion_files": r.motion_files,
+            "history_seconds": len(r.history) * r.dt,
+            "shown": {
+                "step": shown.step,
+                "episode": shown.episode,
+                "episode_step": shown.episode_step,
+                "reward": shown.reward,
+                "reward_terms": shown.terms or {},
+                "episode_return": shown.episode_return,
+            },
+        }
+
+    def _real_time_factor(self) -> float | None:
+        """Rollout seconds played per wall second over the last `RATE_WINDOW` frames (None while paused):
+        below the speed asked for when the machine cannot keep up."""
+        t = self._played
+        if not self.state.playing or len(t) < 2 or t[-1] <= t[0]:
+            return None
+        return round((len(t) - 1) * self.rollout.dt / (t[-1] - t[0]), 2)
+
+    @command
+    def history_qpos(self) -> list[np.ndarray]:
+        """Copies of the recorded qpos (the timeline), oldest first: what a replay export draws."""
+        return [f.qpos.copy() for f in self.rollout.history]
+
+    @command
+    def history_rows(self, since_step: int = -1, limit: int = 5000) -> list[dict[str, Any]]:
+        """Recorded steps after `since_step` with their reward and terms (episode starts left out; an
+        A/B rollout: `b`, B's reward and terms of the same step, null where a side has none), at most
+        the last `limit`."""
+        hist = self.rollout.history
+        b_hist = self.pair.b.history if self.pair is not None else None
+        picked: list[int] = []
+        for i in range(len(hist) - 1, -1, -1):  # newest first: steps never go back along the history
+            if hist[i].step <= since_step or len(picked) == limit:
+                break
+            if hist[i].terms is not None or (b_hist is not None and b_hist[i].terms is not None):
+                picked.append(i)
+        return [self._row(i) for i in reversed(picked)]
+
+    def _row(self, i: int) -> dict[str, Any]:
+        f = self.rollout.history[i]
+        row = {
+            "step": f.step,
+            "time": f.step * self.rollout.dt,
+            "episode": f.episode,
+            "reward": f.reward,
+            "terms": f.terms or {},
+            "body_error": None if f.body_error is None else [round(float(e), 5) for e in f.body_error],
+        }
+        if self.pair is not None:
+            b = self.pair.b.history[i]
+            row["b"] = {"reward": b.reward, "terms": b.terms or {}}
+        return row
+
+    def _published_rows(self) -> tuple[dict[str, Any], ...]:
+        """The last `PUBLISHED_ROWS` history rows: those recorded since the last change are added to the
+        ones published before (a row, once recorded, does not change; steps only go forward)."""
+        new = self.history_rows(self._rows[-1]["step"] if self._rows else -1, PUBLISHED_ROWS)
+        self._rows.extend(new)
+        return tuple(self._rows)
+
+    # -- internals ----------------------------------------------------------------------------------
+
+    def _last_with_terms(self, i: int) -> Frame | None:
+        """The frame `i` or, for an episode's first frame (no reward yet), the latest before it."""
+        hist = self.rollout.history
+        for j in range(i, -1, -1):
+            if hist[j].terms is not None:
+                return hist[j]
+        return None
+
+    def _shown_index(self) -> int:
+        n = len(self.rollout.history)
+        return n - 1 if self.state.view is None else min(self.state.view, n - 1)
+
+    def _draw(self) -> None:
+        r = self.rollout
+        i = self._shown_index()
+        frame = r.history[i]
+        xpos, xmat = r.pose(frame)
+        frame.low_z = float(xpos[r.follow_bodies, 2].min())
+        self.state.height = self._height(i)
+        root = xpos[r.root_body]
+        # Following keeps the pair in view: the point halfway between the character and its ghost.
+        centre = root if r.ghost_root is None else 0.5 * (root + xpos[r.ghost_root])
+        partner, partner_errors = None, None
+        if self.pair is not None:  # B's frame i is the same moment as A's (studio.scene.rollout_pair)
+            b = self.pair.b
+            b_frame = b.history[i]
+            partner, partner_errors = b.pose(b_frame), b.body_error_colours(b_frame)
+        if self.scene is not None:
+            self.scene.draw_bodies(xpos, xmat, centre, self.state.follow, self.state.height, partner)
+            self.scene.colour_bodies(r.body_error_colours(frame), BODY_ERROR_SCALE_M, partner_errors)
+        self.state.root_pos = root.astype(float).tolist()
+        self.state.updates += 1
+        self._changed()
+
+    def _simulate(self) -> None:
+        """One simulated step: of the rollout, or of both sides of an A/B pair."""
+        (self.pair or self.rollout).step()
+
+    def _advance(self) -> None:
+        """One frame on: the next recorded one while history is shown, else one simulated step."""
+        if self.state.view is None:
+            self._simulate()
+            return
+        self.state.view += 1
+        if self.state.view >= len(self.rollout.history) - 1:
+            self.state.view = None
+
+    def _height(self, i: int) -> float:
+        """How far the followed figure stands above the lowest level it has stood on: the lowest of
+        its bodies over the last `SUPPORT_WINDOW_S` of the episode (a lifted foot or a jump do not
+        count), above the lowest seen in the whole rollout (the ground)."""
+        r, hist = self.rollout, self.rollout.history
+        episode = hist[i].episode
+        lows = []
+        for j in range(i, max(-1, i - round(SUPPORT_WINDOW_S / r.dt) - 1), -1):
+            f = hist[j]
+            if f.episode != episode:
+                break
+            if f.low_z is None:
+                f.low_z = float(r.pose(f)[0][r.follow_bodies, 2].min())
+            lows.append(f.low_z)
+        self._ground = min(self._ground, *lows)
+        return max(0.0, min(lows) - self._ground)
+
+    def due(self) -> float | None:
+        """The next control step while playing, else the next checkpoint poll."""
+        return min(self._next_t, self._next_poll) if self.state.playing else self._next_poll
+
+    def tick(self, now: float) -> None:
+        """Step at control rate × speed while playing (no bursts to catch up); poll the checkpoint."""
+        if now >= self._next_poll:
+            self._next_poll = now + RELOAD_POLL_S
+            try:
+                if (self.pair or self.rollout).reload_if_newer():
+                    self.state.view = None
+                    self._draw()
+                elif any(r.error for r in self.sides):
+                    self._changed()
+            except Exception as e:  # noqa: BLE001
+                self.rollout.error = f"reload failed: {e!r}"
+        if not self.state.playing or now < self._next_t:
+            return
+        period = self.rollout.dt / self.state.speed
+        try:
+            self._advance()
+            self._played.append(now)
+            self._draw()
+        except Exception as e:  # noqa: BLE001 - a simulation error pauses the rollout, reported in state
+            self.state.playing = False
+            self.rollout.error = f"simulation stopped: {e!r}"
+            self._changed()
+        self._next_t = max(self._next_t + period, now - period)
+
+
+def _figure(r: Rollout) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray | None]:
+    """What the scene draws of `r`: its model, ghost bodies, and the bodies coloured by their error."""
+    return r.model, r.ghost_bodies, r.char_bodies if r.body_names else None
+
+
+def _side_json(r: Rollout, i: int) -> dict[str, Any]:
+    """One side (A, or B of an A/B rollout) at history frame `i`: its source and what the label and plots
+    show (`reward` None for an episode's first frame; `body_error` None without a reference; `waiting`:
+    an A/B side's ended episode, held until the other ends)."""
+    shown = r.history[min(i, len(r.history) - 1)]
+    return {
+        **r.source.to_json(),
+        "checkpoint_mtime": r.checkpoint_mtime,
+        # The training the weights have seen (the checkpoint's `_train_state`; 0 for a file without one).
+        "iteration": r.agent.get_iteration(),
+        "samples": r.agent.get_sample_count(),
+        "reloads": r.reloads,
+        "error": r.error,
+        "episode": shown.episode,
+        "episode_step": shown.episode_step,
+        "episode_return": shown.episode_return,
+        "reward": shown.reward,
+        "reward_terms": shown.terms or {},
+        "body_error": r.body_error_json(shown),
+        "waiting": shown.waiting,
+        "episodes": [e.to_json() for e in list(r.episodes)[-10:]],
+    }
