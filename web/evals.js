@@ -8,11 +8,11 @@ import { applyState } from "./player.js";
 const ACTIVE = ["queued", "running"];
 const COLUMNS = [  // [header, title, row -> text]
   ["clip", "the clip, as the dataset names it", (r) => r.clip.split("/").pop()],
-  ["ep.", "episodes: the test episodes that ended on this clip", (r) => String(r.episodes)],
+  ["ep.", "episodes: exactly the number asked for (each env counts its first ones; see mimickit eval --help)", (r) => String(r.episodes)],
   ["length", "mean episode length (control steps)", (r) => fixed(r.mean_ep_len, 1)],
-  ["full", "full length: the fraction of episodes that ran to the end (did not fall)", (r) => (r.full_length_frac === null || r.full_length_frac === undefined ? "–" : `${(100 * r.full_length_frac).toFixed(0)}%`)],
-  ["pos err", "position error (m) by the paper's formula (Table 1), mean over every test step", (r) => fixed(r.paper_pos_err_m, 3)],
-  ["vel err", "DoF velocity error (rad/s) by the paper's formula, mean over every test step", (r) => fixed(r.paper_dof_vel_err, 3)],
+  ["full time", "time-weighted full length: the counted episodes' control steps / the steps they had available (to the time limit, or to the end of a clip that does not loop, whichever is first); a fall loses the rest of its episode, and an episode that starts just before a clip's end weighs only its few steps", (r) => (r.full_length_frac === null || r.full_length_frac === undefined ? "–" : `${(100 * r.full_length_frac).toFixed(0)}%`)],
+  ["pos err", "position error (m) by the paper's formula (Table 1), mean over the counted episodes' steps", (r) => fixed(r.paper_pos_err_m, 3)],
+  ["vel err", "DoF velocity error (rad/s) by the paper's formula, mean over the counted episodes' steps", (r) => fixed(r.paper_dof_vel_err, 3)],
 ];
 const fixed = (v, d) => (v === null || v === undefined ? "–" : Number(v).toFixed(d));
 const short = (path, parts = 1) => path.split("/").slice(-parts).join("/");
@@ -147,7 +147,7 @@ function updateJobNode({ job, fields: f }) {
   if (job.status !== "finished") f.table.replaceChildren();
 }
 
-// One row per clip (a click rolls it out) and the episode-weighted mean.
+// One row per clip (a click rolls it out) and the mean row (the rows pooled, as `mimickit eval` gives it).
 function resultTable(job) {
   const head = el("tr", {}, ...COLUMNS.map(([h, title]) => el("th", { title }, h)));
   const rows = job.rows.map((r, i) => el("tr", { class: "eval-row", "data-row": i, title: `roll out ${r.clip}`, onclick: (ev) => rollOutRow(job.id, i, ev.currentTarget) },

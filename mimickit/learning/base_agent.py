@@ -25,6 +25,7 @@ from __future__ import annotations
 import abc
 import copy
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from enum import IntEnum
 from pathlib import Path
@@ -262,6 +263,22 @@ class BaseAgent(nn.Module, abc.ABC):
             self._curr_obs, self._curr_info = self._reset_envs()
             local = self._rollout_test(num_eps_proc)
         return _reduce_episode_stats(local)
+
+    def test_steps(self) -> Iterator[tuple[torch.Tensor, torch.Tensor, dict[str, Any]]]:
+        """The deterministic policy's test rollout one step at a time, for tools that choose which episodes
+        count (`mimickit eval`): every env is reset, then each item is a step's (reward [N], done [N], info),
+        yielded before the envs that ended are reset (a reset rewrites their rows of `info`, so read it
+        then). It never ends by itself: the caller stops iterating (and closes it), or `request_stop`.
+        `test_model` keeps the reference's loop and its way of counting."""
+        self.eval()
+        self.set_mode(AgentMode.TEST)
+        with torch.no_grad(), torch_threads(1):
+            obs, info = self._reset_envs()
+            while not self._stop_requested:
+                action, _ = self._decide_action(obs, info)
+                obs, reward, done, info = self._env.step(action)
+                yield reward, done, info
+                obs, info = self._reset_done_envs(obs, info, done)
 
     def request_stop(self) -> None:
         """Ask `train_model` / `test_model` to end gracefully (safe to call from a signal handler)."""

@@ -1,7 +1,7 @@
 """A trained policy in its env, built as an arg file says: how `mimickit eval`, `mimickit video`, the
 studio's rollouts and the tests load a checkpoint, so that each one plays the same env (the configs and
-`--motion_file`) that `mimickit test` would; and what `mimickit test` and `eval` report of its test
-episodes (`test_result`).
+`--motion_file`) that `mimickit test` would; and what `mimickit test` reports of its test episodes
+(`test_result`; `mimickit eval` counts its episodes its own way, `mimickit.tools.evaluate`).
 
     inputs = policy_inputs("data/models/deepmimic_humanoid_walk_model.txt", DataPaths("../shared/data"))
     env, agent = load_policy(inputs, "data/models/deepmimic_humanoid_walk_model.pt", num_envs=4)

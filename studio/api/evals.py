@@ -44,8 +44,8 @@ class RollOutRow(StrictBody):
 ROUTES = JobRoutes(
     router,
     lambda studio: studio.evals,
-    result="`rows` (one per clip: clip, weight, episodes, mean_ep_len, full_length_frac, mean_return, pos_err_m, "
-    "paper_pos_err_m, paper_dof_vel_err) and their episode-weighted `mean`",
+    result="`rows` (one per clip: clip, weight, episodes, failed, mean_ep_len, full_length_frac (time-weighted), "
+    "mean_return, pos_err_m, paper_pos_err_m, paper_dof_vel_err, steps, available_steps) and `mean`, the rows pooled",
 )
 
 

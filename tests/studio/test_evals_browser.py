@@ -89,10 +89,13 @@ def test_an_eval_from_the_page_shows_its_table_and_a_row_rolls_out(page, server:
     rows = job.locator("table.evals tbody tr")
     wait_for(lambda: rows.count() == 1, 30, "the eval table's row")
     headers = job.locator("table.evals thead th").all_inner_texts()
-    assert headers == ["clip", "ep.", "length", "full", "pos err", "vel err"]
+    assert headers == ["clip", "ep.", "length", "full time", "pos err", "vel err"]
+    full_title = job.locator("table.evals thead th").nth(3).get_attribute("title")
+    assert "time-weighted" in full_title and "steps they had available" in full_title, full_title
     cells = rows.first.locator("td").all_inner_texts()
     row = server.get(f"/api/evals/{job_id}").json()["rows"][0]
-    assert cells[0] == "humanoid_demo_squat.pkl" and cells[1] == str(row["episodes"])
+    assert cells[0] == "humanoid_demo_squat.pkl" and cells[1] == str(row["episodes"]) == "1"  # as asked
+    assert cells[3] == f"{100 * row['full_length_frac']:.0f}%"
     assert cells[2] == f"{row['mean_ep_len']:.1f}" and cells[4] == f"{row['paper_pos_err_m']:.3f}"
 
     rows.first.click()
@@ -152,9 +155,10 @@ def test_a_dataset_eval_shows_a_row_per_clip_and_the_mean_and_the_second_row_rol
     wait_for(lambda: rows.count() == 2, 30, "a table row per clip")
     for i, (clip, row) in enumerate(zip(("humanoid_demo_squat.pkl", short.name), done["rows"], strict=True)):
         cells = rows.nth(i).locator("td").all_inner_texts()
-        assert cells[:3] == [clip, str(row["episodes"]), f"{row['mean_ep_len']:.1f}"], cells
+        assert cells[:3] == [clip, "2", f"{row['mean_ep_len']:.1f}"], cells  # the 2 episodes asked for
     mean = job.locator("table.evals tfoot tr td").all_inner_texts()
-    assert mean[:3] == ["mean of 2", str(done["mean"]["episodes"]), f"{done['mean']['mean_ep_len']:.1f}"], mean
+    assert mean[:3] == ["mean of 2", "4", f"{done['mean']['mean_ep_len']:.1f}"], mean
+    assert mean[3] == f"{100 * done['mean']['full_length_frac']:.0f}%"
     assert mean[4] == f"{done['mean']['paper_pos_err_m']:.3f}"
 
     rows.nth(1).click()

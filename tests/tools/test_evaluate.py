@@ -1,9 +1,12 @@
-"""`mimickit eval`: the demo policy on a two-clip dataset (real MuJoCo, a real CLI process), and bad input
-as one error line."""
+"""`mimickit eval`: the demo policy on a two-clip dataset (real MuJoCo, a real CLI process); exactly the
+episodes asked for, and a start just before a non-looping clip's end weighing its few steps in the
+time-weighted full length; bad input as one error line."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +16,9 @@ import torch
 import yaml
 
 from mimickit import cli
-from mimickit.tools.evaluate import format_table
+from mimickit.anim.motion import LoopMode, load_motion, save_motion
+from mimickit.runner import policy
+from mimickit.tools.evaluate import EvalClip, clip_row, count_episodes, episode_quota, format_table
 from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT
 from tests.conftest import DEMO_CLIP
 
@@ -51,7 +56,8 @@ def test_one_row_per_dataset_entry_in_range(report: dict) -> None:
         ("data/motions/humanoid_demo_squat.pkl", 3.0),
     ]
     for row in rows:
-        assert row["episodes"] >= 2
+        assert row["episodes"] == 2 and row["failed"] == 0
+        assert row["steps"] == row["available_steps"] == round(2 * row["mean_ep_len"])
         assert 0 < row["mean_ep_len"] <= EPISODE_STEPS
         assert 0.0 <= row["full_length_frac"] <= 1.0
         for key in ERROR_KEYS:
@@ -69,17 +75,20 @@ def test_each_clip_starts_from_the_same_seed(report: dict) -> None:
     assert first == second
 
 
-def test_mean_is_weighted_by_episodes(report: dict) -> None:
+def test_mean_pools_the_rows(report: dict) -> None:
+    """Lengths and returns weighted by episodes, the full length by available steps, errors by steps."""
     rows, mean = report["rows"], report["mean"]
-    assert mean["clips"] == 2 and mean["episodes"] == sum(r["episodes"] for r in rows)
-    for key in ("mean_ep_len", "full_length_frac", *ERROR_KEYS):
-        expected = sum(r[key] * r["episodes"] for r in rows) / mean["episodes"]
-        assert mean[key] == pytest.approx(expected)
+    assert mean["clips"] == 2
+    for key in ("episodes", "failed", "steps", "available_steps"):
+        assert mean[key] == sum(r[key] for r in rows), key
+    for key, weight in (("mean_ep_len", "episodes"), ("full_length_frac", "available_steps"), ("pos_err_m", "steps")):
+        expected = sum(r[key] * r[weight] for r in rows) / mean[weight]
+        assert mean[key] == pytest.approx(expected), key
 
 
 def test_table_has_a_line_per_clip_and_the_mean(report: dict) -> None:
     lines = format_table(report).splitlines()
-    assert lines[0].split()[:3] == ["clip", "weight", "episodes"]
+    assert lines[0].split()[:6] == ["clip", "weight", "episodes", "failed", "mean_ep_len", "full_time"]
     assert len(lines) == 4 and lines[3].startswith("mean (2 clips)")
     assert f"{report['rows'][0]['paper_pos_err_m']:.4f}" in lines[1]
 
@@ -160,5 +169,69 @@ def test_falls_count_against_full_length(test_data: Path, capsys: pytest.Capture
     argv += ["--motion_file", "data/motions/humanoid/humanoid_run.pkl", "--episodes", "2", "--num_envs", "2", "--json"]
     assert cli.main(argv) == 0
     (row,) = json.loads(capsys.readouterr().out)["rows"]
-    assert row["clip"] == "data/motions/humanoid/humanoid_run.pkl" and row["episodes"] >= 2
+    assert row["clip"] == "data/motions/humanoid/humanoid_run.pkl" and row["episodes"] == 2 and row["failed"] >= 1
     assert row["mean_ep_len"] < EPISODE_STEPS / 2 and row["full_length_frac"] < 0.5, row
+
+
+def test_quota_spreads_the_episodes_over_the_envs() -> None:
+    assert episode_quota(2, 2) == [1, 1]
+    assert episode_quota(5, 2) == [3, 2]
+    assert episode_quota(7, 3) == [3, 2, 2]
+    assert sum(episode_quota(256, 16)) == 256
+
+
+def test_more_envs_than_episodes_still_counts_the_episodes_asked(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["eval", "--arg_file", str(DEMO_ARGS), "--model_file", str(DEMO_MODEL), "--motion_file", str(DEMO_CLIP)]
+    assert cli.main([*argv, "--episodes", "1", "--num_envs", "3", "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)["rows"]
+    assert row["episodes"] == 1 and row["steps"] == EPISODE_STEPS
+
+
+@pytest.fixture
+def short_clamped_clip(tmp_path: Path) -> Path:
+    """The first 60 frames (about 2 s) of the demo squat, not looping: its episodes end at its end."""
+    demo = load_motion(DEMO_CLIP)
+    path = tmp_path / "short_squat.pkl"
+    save_motion(path, dataclasses.replace(demo, frames=demo.frames[:60].copy(), loop_mode=LoopMode.CLAMP))
+    return path
+
+
+def walk_policy_on(clip: Path, starts: list[float]) -> tuple[object, object, int]:
+    """The walk policy in 2 envs of `clip` (it falls trying to squat), env i starting at `starts[i]`
+    seconds (negative: that many before the clip's end); and the clip's length in control steps."""
+    walk = PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_walk_model"
+    inputs = dataclasses.replace(policy.policy_inputs(walk.with_suffix(".txt")), motion_file=str(clip))
+    env, agent = policy.load_policy(inputs, walk.with_suffix(".pt"), num_envs=2)
+    length = float(env.motion_lib.get_motion_length(torch.tensor([0])))
+    times = torch.tensor([length + t if t < 0 else t for t in starts])
+    env.start_next_resets_at(torch.zeros(2, dtype=torch.long), times)
+    return env, agent, math.ceil(length / env.engine.get_timestep() - 1e-3)
+
+
+def test_a_start_just_before_a_non_looping_clips_end_weighs_only_its_steps(short_clamped_clip: Path) -> None:
+    """2 episodes, 2 envs: env 0 starts 0.1 s before the clip's end (3 steps at 30 Hz, then the clip ends
+    it: not a failure), env 1 at the clip's start, and the walk policy falls trying to squat. Counted
+    per episode, half the episodes would be "full"; weighted by the time each had, the fall dominates."""
+    torch.manual_seed(0)
+    env, agent, clip_steps = walk_policy_on(short_clamped_clip, [-0.1, 0.0])
+    try:
+        totals = count_episodes(agent, env, 2)
+    finally:
+        env.engine.close()
+    assert totals.episodes == 2 and totals.failed == 1
+    fall_steps = totals.steps - 3
+    assert 0 < fall_steps < clip_steps  # env 1 fell before the clip's end
+    assert totals.available_steps == 3 + clip_steps  # what each episode had: 3 steps, the whole clip
+    row = clip_row(EvalClip("short", short_clamped_clip, 1.0), totals)
+    assert row["full_length_frac"] == pytest.approx((3 + fall_steps) / (3 + clip_steps))
+    assert row["full_length_frac"] < 0.75 and row["mean_ep_len"] == totals.steps / 2
+
+    # `mimickit test` keeps the reference's count: env 0 runs more episodes while env 1 is up, and every
+    # one that ends counts, so 2 episodes come back as more.
+    torch.manual_seed(0)
+    env, agent, _ = walk_policy_on(short_clamped_clip, [-0.1, 0.0])
+    try:
+        reference = policy.test_result(agent, env, 2)
+    finally:
+        env.engine.close()
+    assert reference["episodes"] > 2 and reference["episode_ends"]["fail"] >= 1
