@@ -12,7 +12,8 @@ effective values, the seed used, versions), the configs as trained, state.json (
 finished / stopped / diverged / failed with the line that says why). Without `--rand_seed` a seed is
 drawn and recorded; `--rand_seed <seed>` repeats a CPU run's metrics rows exactly (same num_envs).
 `--model_file RUN/model.pt --out_dir RUN --max_samples LARGER` (or `--max_hours LARGER`) continues a run
-with a new budget.
+with a new budget. `--arg_file RUN/args.json` takes a run's recorded arguments and its configs as trained
+(test mode: its model.pt; never its out_dir; see `mimickit.util.arg_parser`).
 SIGTERM or Ctrl-C during training saves a checkpoint and exits 0 (state stopped).
 Several processes: `--devices cpu cpu` spawns one per device; under torchrun (`torchrun --nproc-per-node 2
 -m mimickit.cli train ...`, see `mimickit.runner.torchrun_env`) every process is already started and joins the

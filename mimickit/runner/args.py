@@ -20,7 +20,7 @@ from mimickit.util.config import nearest_name
 from mimickit.util.errors import MimicKitError, shorten
 
 RUN_ARGS: dict[str, str] = {
-    "arg_file": "a file of further --key value lines (the command line wins over it)",
+    "arg_file": "a file of --key value lines, or .json: an object of them or a run's args.json (the command line wins)",
     "mode": "train or test",
     "num_envs": "envs per process (an integer >= 1)",
     "engine_config": "engine yaml (physics backend and rates)",

@@ -25,6 +25,7 @@ from tests.hostile.read_only import read_only_dir
 ENV_YAML = PROJECT_DATA_DIR / "envs" / "deepmimic_humanoid_env.yaml"
 AMP_ENV_YAML = PROJECT_DATA_DIR / "envs" / "amp_humanoid_env.yaml"
 ENGINE_YAML = PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml"
+DEMO_MODEL = PROJECT_DATA_DIR / "models" / "deepmimic_humanoid_demo_model.pt"
 AGENT_YAML = PROJECT_DATA_DIR / "agents" / "amp_humanoid_agent.yaml"
 ARG_FILE = PROJECT_ROOT / "args" / "deepmimic_humanoid_ppo_args.txt"
 ARG_FILES = sorted((PROJECT_ROOT / "args").glob("*_args.txt"))
@@ -354,6 +355,77 @@ def test_hostile_arg_file(tmp_path: Path, content: bytes, needle: str) -> None:
     with pytest.raises(MimicKitError) as e:
         parsed(["--arg_file", str(f)])
     assert_one_line(e, needle, "bad_args.txt")
+
+
+JSON_ARG_FILE_CASES = [
+    pytest.param(b'{"num_envs": 8,', "not valid JSON", id="err-jsonargs-truncated"),
+    pytest.param(b"{'num_envs': 8}", "not valid JSON", id="err-jsonargs-single-quotes"),
+    pytest.param(b'["--num_envs", "8"]', "holds an object of arguments, got a list", id="err-jsonargs-list"),
+    pytest.param(b'"--num_envs 8"', "got a string", id="err-jsonargs-string"),
+    pytest.param(b"null", "got null", id="err-jsonargs-null"),
+    pytest.param(b"42", "got a number", id="err-jsonargs-number"),
+    pytest.param(
+        b'{"num_envs": {"n": 8}}', "--num_envs: expected a string, number or boolean", id="err-jsonargs-object"
+    ),
+    pytest.param(b'{"num_envs": null}', "got null", id="err-jsonargs-null-value"),
+    pytest.param(b'{"devices": ["cpu", ["cpu"]]}', "--devices: expected", id="err-jsonargs-nested-list"),
+    pytest.param(b"[" * 200_000 + b"]" * 200_000, "nested too deeply", id="err-jsonargs-deep-nesting"),
+    pytest.param(b'{"num_envs": ' + b"9" * 5000 + b"}", "not valid JSON", id="err-jsonargs-5000-digit-number"),
+    pytest.param(b'{"pad": "' + b"x" * (1 << 20) + b'"}', "byte limit", id="err-jsonargs-over-size-limit"),
+    pytest.param(b'{"arg_file": "other.txt"}', "cannot name another --arg_file", id="err-jsonargs-nested-arg-file"),
+    pytest.param(b'{"format": 2, "args": {}}', "a run record of format 2", id="err-jsonargs-record-format"),
+    pytest.param(b'{"format": 1, "args": ["--num_envs"]}', "`args` must be an object", id="err-jsonargs-record-args"),
+    pytest.param(b'{"format": 1, "args": {"num_envs": [{}]}}', "--num_envs: expected", id="err-jsonargs-record-type"),
+    pytest.param(b"\xff\xfe{}", "not UTF-8", id="err-jsonargs-utf16-bom"),
+]
+
+
+@pytest.mark.parametrize("content, needle", JSON_ARG_FILE_CASES)
+def test_hostile_json_arg_file(tmp_path: Path, content: bytes, needle: str) -> None:
+    f = write(tmp_path, "bad_args.json", content)
+    with pytest.raises(MimicKitError) as e:
+        parsed(["--arg_file", str(f)])
+    assert_one_line(e, needle, "bad_args.json")
+
+
+JSON_CHECK_CASES = [
+    pytest.param({"num_env": 8}, "unknown argument --num_env in", id="err-jsonargs-unknown-key"),
+    pytest.param(
+        {"format": 1, "args": {"nmu_envs": ["8"]}}, "unknown argument --nmu_envs in", id="err-jsonargs-record-key"
+    ),
+    pytest.param({"num_envs": 1.5}, "--num_envs in", id="err-jsonargs-num-envs-fraction"),
+    pytest.param({"num_envs": True}, "expected an integer, got 'true'", id="err-jsonargs-num-envs-bool"),
+    pytest.param({"max_hours": float("nan")}, "must be a number > 0, got nan", id="err-jsonargs-max-hours-nan"),
+    pytest.param({"num_envs": [8, 16]}, "takes one value, got 2", id="err-jsonargs-two-values"),
+    pytest.param({"k" * 5000: 1}, "unknown argument", id="err-jsonargs-huge-key"),
+]
+
+
+@pytest.mark.parametrize("obj, needle", JSON_CHECK_CASES)
+def test_bad_json_arg_values_name_the_file(tmp_path: Path, obj: dict, needle: str) -> None:
+    """Parsed, then refused by the run's checks in one line naming the key and the file."""
+    import json
+
+    f = write(tmp_path, "my_args.json", json.dumps({"env_config": str(ENV_YAML), **obj}))
+    with pytest.raises(MimicKitError) as e:
+        check_run_args(parsed(["--arg_file", str(f), "--mode", "test", "--model_file", str(DEMO_MODEL)]))
+    assert_one_line(e, needle, "my_args.json")
+
+
+@one_case("ok-jsonargs-plain-object")
+def test_plain_json_arg_file(case: str, tmp_path: Path) -> None:  # ok-: JSON types become the text tokens
+    f = write(
+        tmp_path,
+        "ok_args.json",
+        b'{"env_config": "data/envs/deepmimic_humanoid_env.yaml", "num_envs": 8, "max_samples": 1e6, '
+        b'"devices": ["cpu", "cpu"], "save_int_models": true, "max_hours": 0.5}',
+    )
+    args = parsed(["--arg_file", str(f), "--num_envs", "4", "--out_dir", str(tmp_path / "run")])
+    check_run_args(args)
+    assert args.parse_int("num_envs") == 4 and args.source("num_envs") == "the command line"  # the command line wins
+    assert args.parse_int("max_samples") == 1_000_000 and args.parse_strings("devices") == ["cpu", "cpu"]
+    assert args.parse_bool("save_int_models") and args.parse_float("max_hours") == 0.5
+    assert args.source("devices") == str(f)
 
 
 @pytest.mark.integration
