@@ -136,6 +136,12 @@ def add_sweep_parser(sub: argparse._SubParsersAction) -> None:
     sweep.add_argument("--num_envs", type=int)
     sweep.add_argument("--max_samples", type=int)
     sweep.add_argument("--max_hours", type=float, help="each run's wall-time budget (the trainer's --max_hours)")
+    sweep.add_argument(
+        "--save_int_models",
+        action="store_const",
+        const=True,
+        help="every run also keeps int_models/model_{iteration}.pt (the trainer's --save_int_models true)",
+    )
     sweep.add_argument("--num-cpus", type=float, help="CPUs each run reserves on a Ray cluster (default 1)")
     sweep.add_argument("--num-gpus", type=float, help="GPUs each run reserves on a Ray cluster")
     sweep.add_argument("--url", default="http://127.0.0.1:8000/", help="the studio's address")
@@ -154,6 +160,7 @@ def sweep_body(args: argparse.Namespace) -> dict[str, object]:
         values.setdefault(key, []).extend(v.split() if several else _typed(v.strip()) for v in text.split(","))
     body = {"arg_file": args.arg_file, "values": values, "dataset": args.dataset, "name": args.name}
     body |= {"num_envs": args.num_envs, "max_samples": args.max_samples, "max_hours": args.max_hours}
+    body |= {"save_int_models": args.save_int_models}
     body |= {"num_cpus": args.num_cpus, "num_gpus": args.num_gpus}
     return {k: v for k, v in body.items() if v is not None}
 

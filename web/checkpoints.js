@@ -5,17 +5,39 @@ import { loadRollout } from "./player.js";
 // A model trained on a clip the data folders lack (MimicKit's clips are not shipped) says so in the list.
 export const needsData = (c) => c.needs_data ? ` · needs ${c.needs_data.split("/").pop()}: start the studio with --data-dir` : "";
 
+// The list comes grouped (GET /api/checkpoints): one <optgroup> per run ("#id name"), its checkpoints by
+// iteration, the newest first (model.pt marked "latest", the --save_int_models ones below it), then the
+// data folders' models. A and B get the same groups.
 export async function refreshCheckpoints() {
   let list;
   try { list = await api("GET", "/api/checkpoints"); } catch (e) { return; }
+  const groups = checkpointGroups(list);
   const sel = $("checkpoint"), keep = sel.value;
-  const opts = list.map((c) => el("option", { value: c.path, title: c.path },
-    `${c.run_id !== null ? `#${c.run_id} ${c.run_name} · ` : ""}${c.path.split("/").slice(-2).join("/")} · ${new Date(c.mtime * 1000).toLocaleTimeString()}${needsData(c)}`));
-  sel.replaceChildren(...(opts.length ? opts : [el("option", { value: "" }, "(no checkpoints yet)")]));
+  sel.replaceChildren(...(groups.length ? groups : [el("option", { value: "" }, "(no checkpoints yet)")]));
   if (keep && list.some((c) => c.path === keep)) sel.value = keep;
   const b = $("checkpoint-b"), keepB = b.value;  // A/B: the same list, B's pick
-  b.replaceChildren(el("option", { value: "" }, "B: (pick a second checkpoint)"), ...opts.map((o) => o.cloneNode(true)));
+  b.replaceChildren(el("option", { value: "" }, "B: (pick a second checkpoint)"), ...groups.map((g) => g.cloneNode(true)));
   if (keepB && list.some((c) => c.path === keepB)) b.value = keepB;
+}
+
+function checkpointGroups(list) {
+  const groups = new Map();
+  for (const c of list) {
+    if (!groups.has(c.group)) groups.set(c.group, el("optgroup", { label: c.group }));
+    groups.get(c.group).append(el("option", { value: c.path, title: c.path, "data-iteration": c.iteration ?? "" }, checkpointLabel(c)));
+  }
+  return [...groups.values()];
+}
+
+// "iter 12 · 98304 samples · latest": the training its weights have seen, as a rollout's label counts it;
+// a file with no known iteration by its name (a shipped model), in a run also the time it was saved.
+const samplesText = (n) => (n < 1e6 ? `${n}` : `${(n / 1e6).toFixed(2)} M`);
+function checkpointLabel(c) {
+  const name = c.path.split("/").slice(-2).join("/");
+  const trained = c.iteration !== null
+    ? `iter ${c.iteration}${c.samples !== null ? ` · ${samplesText(c.samples)} samples` : ""}`
+    : c.run_id !== null ? `${name} · ${new Date(c.mtime * 1000).toLocaleTimeString()}` : name;
+  return `${trained}${c.latest ? " · latest" : ""}${needsData(c)}`;
 }
 
 export function fillFitTargets(library) {

@@ -28,7 +28,9 @@ function buildLaunchFields(fields) {
   const box = $("launch-fields"), rows = new Map();
   box.replaceChildren();
   for (const f of fields) {
-    const label = el("label", {}, `${f.widget.label} `, fieldInput(f));
+    const label = f.widget.kind === "checkbox"  // a box before its text, as the page's other checkboxes
+      ? el("label", {}, fieldInput(f), ` ${f.widget.label}`)
+      : el("label", {}, `${f.widget.label} `, fieldInput(f));
     const row = f.widget.row;
     if (row && !rows.has(row)) box.append(rows.set(row, el("div", { class: "row" })).get(row));
     (row ? rows.get(row) : box).append(label);
@@ -40,15 +42,18 @@ function fieldInput(f) {
   const w = f.widget, attrs = { id: w.id, title: f.help };
   if (f.required) attrs.required = "";
   if (w.kind === "select") return el("select", attrs, ...(f.required ? [] : [el("option", { value: "" }, w.placeholder)]));
+  if (w.kind === "checkbox") return el("input", { ...attrs, type: "checkbox" });
   Object.assign(attrs, { type: w.kind, placeholder: w.placeholder });
   if (w.kind === "number") Object.assign(attrs, f.min === null ? {} : { min: f.min }, { step: w.step });
   return el("input", attrs);
 }
 
-// The body of POST /api/runs: each field that has a value (a required one always), a number as a number.
+// The body of POST /api/runs: each field that has a value (a required one always), a number as a number,
+// a ticked box as true (an unticked one is left out, as the server takes false).
 function launchBody() {
   const body = {};
   for (const f of launchFields) {
+    if (f.widget.kind === "checkbox") { if ($(f.widget.id).checked) body[f.name] = true; continue; }
     const value = $(f.widget.id).value;
     if (value !== "" || f.required) body[f.name] = f.type === "string" ? value : Number(value);
   }
@@ -165,7 +170,7 @@ export function renderRuns(runs) {
 
 // The run list, pushed by the stream when it changed: each run keeps its element, updated in place, so a
 // focused button keeps its focus and a click in flight lands; the list is re-laid only when runs came
-// or went. The checkpoint list is fetched again only when a run's checkpoint changed.
+// or went. The checkpoint list is fetched again only when a run's checkpoint or status changed.
 const runNodes = new Map();  // run id -> {node, run, key, fields}
 let checkpointsKey = null;
 function drawRuns(runs) {
@@ -176,7 +181,9 @@ function drawRuns(runs) {
   for (const child of [...list.children]) if (!keep.has(child)) child.remove();
   nodes.forEach((n, i) => { if (list.children[i] !== n) list.insertBefore(n, list.children[i] || null); });
   for (const id of runNodes.keys()) if (!runs.some((r) => r.id === id)) { runNodes.delete(id); compareSelection.delete(id); }
-  const key = JSON.stringify(runs.map((r) => [r.id, r.checkpoint, r.checkpoint_mtime ?? null]));
+  // The status too: a run's last int_models/ checkpoint is written just after its model.pt, so a fetch
+  // between the two would miss it; the run's end fetches the list once more.
+  const key = JSON.stringify(runs.map((r) => [r.id, r.status, r.checkpoint, r.checkpoint_mtime ?? null]));
   if (checkpointsKey !== null && key !== checkpointsKey) refreshCheckpoints();
   checkpointsKey = key;
   compareSelection.changed();

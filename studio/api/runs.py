@@ -35,7 +35,7 @@ def field_spec(name: str, description: str | None = None) -> tuple[Any, Any]:
     """The pydantic (annotation, Field) of launch field `name` (`description`: another help text)."""
     f = BY_NAME[name]
     limits = dict(f.limits)
-    if f.type is not str:  # numbers are strict (`true` is not 1, `4.0` not 4) and finite: the trainer's checks
+    if f.type is not str:  # strict, as the trainer's checks: `true` is not 1, `4.0` not 4, "true" not true
         limits["strict"] = True
     if f.type is float:
         limits["allow_inf_nan"] = False
@@ -120,12 +120,14 @@ RESOLVERS = {"arg": _arg_file, "motion": resolve_motion_file}
 
 def run_config(body: Any, settings: Settings) -> dict[str, Any]:
     """What the registry keeps of a launch (`body`: a `LaunchRun`): every field given but the name, the
-    arg file and clip resolved, and the resources (1 CPU by default with Ray, so that Ray, not the
-    studio, decides how many run at once)."""
+    arg file and clip resolved (a bool only when true), and the resources (1 CPU by default with Ray, so
+    that Ray, not the studio, decides how many run at once)."""
     config: dict[str, Any] = {}
     for f in LAUNCH_FIELDS:
         value = getattr(body, f.name)
         if value is None or f.name == "name" or (value == "" and not f.required):  # "": as not given
+            continue
+        if value is False:  # an unticked box is as not given: the argv and the registry's record stay as before
             continue
         config[f.name] = str(RESOLVERS[f.path](value, settings)) if f.path else value
     if settings.executor == "ray":

@@ -56,9 +56,12 @@ class LaunchSweep(LaunchRun):
 
 
 def sweep_keys(values: dict[Any, Any]) -> None:
-    """RunError 400 for a key no run takes (naming the nearest) or an empty list of values."""
+    """RunError 400 for a key no run takes (naming the nearest), a launch field a sweep does not vary, or an
+    empty list of values."""
     known = [k for k in RUN_ARGS if k not in STUDIO_KEYS]
     for key, vals in values.items():
+        if key in NOT_SWEPT:  # a launch field set once per launch (the arg file, save_int_models): say where it goes
+            raise RunError(f"values: {key} is one value for all of a sweep's runs: give it beside values", 400)
         if key not in known:
             near = nearest_name(str(key)[:100], known)
             hint = f"; did you mean {near!r}?" if near else ""

@@ -16,13 +16,14 @@ from typing import Any
 from mimickit.runner.args import MAX_NUM_ENVS, MAX_SEED
 
 NO_CONTROL_CHARS = r"^[^\x00-\x1f\x7f]*$"
-JSON_TYPES = {int: "integer", float: "number", str: "string"}
+JSON_TYPES = {int: "integer", float: "number", str: "string", bool: "boolean"}
 
 
 @dataclass(frozen=True)
 class Widget:
-    """The field's input in the launch form: `kind` number, text or select (a select's options are the
-    library's, filled by the page); fields of the same `row` sit side by side."""
+    """The field's input in the launch form: `kind` number, text, select (a select's options are the
+    library's, filled by the page) or checkbox (a bool: ticked sends true, unticked leaves it out); fields
+    of the same `row` sit side by side."""
 
     kind: str
     label: str
@@ -34,8 +35,9 @@ class Widget:
 @dataclass(frozen=True)
 class LaunchField:
     """One field of a launch. `limits`: pydantic's Field constraints (numbers are also strict and
-    finite: `true` is not 1, `4.0` not 4); `flag`: the trainer's `--key` it becomes (None: the studio's
-    own, e.g. a run's name or the resources Ray reserves); `path`: a file the studio resolves and
+    finite: `true` is not 1, `4.0` not 4; a bool is strict too: `"true"` and 1 are not true; false is as
+    not given, so the trainer gets `--flag true` only for true); `flag`: the trainer's `--key` it becomes
+    (None: the studio's own, e.g. a run's name or the resources Ray reserves); `path`: a file the studio resolves and
     confines first (`arg` or `motion`); `sweepable`: a sweep's `values` may vary it, each value checked
     as this field's."""
 
@@ -98,6 +100,11 @@ LAUNCH_FIELDS: tuple[LaunchField, ...] = (
       W("select", "clip or dataset", "(from the arg file)"), flag="motion_file", sweepable=True, path="motion"),
     F("rand_seed", int, "the seed (default: the trainer picks one)", W("number", "seed", "(the trainer picks one)"),
       limits={"ge": 0, "le": MAX_SEED}, flag="rand_seed", sweepable=True),
+    # Not sweepable: keeping the intermediate checkpoints is one choice for all of a launch's runs (a
+    # sweep's body sets it for every run), not a setting whose effect a sweep would compare.
+    F("save_int_models", bool, "also keep int_models/model_{iteration}.pt at every output iteration "
+      "(--save_int_models true): the Checkpoints box lists them per run to roll out or A/B",
+      W("checkbox", "keep every output's checkpoint"), flag="save_int_models"),
     F("num_cpus", float, "CPUs the run reserves (the Ray executor; default 1)", W("number", "CPUs", "Ray: 1", "ray"),
       limits={"ge": 0, "le": 1024}),
     F("num_gpus", float, "GPUs the run reserves (the Ray executor; default 0)", W("number", "GPUs", "Ray: 0", "ray"),

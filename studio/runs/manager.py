@@ -69,7 +69,10 @@ def train_command(
 
 
 def _items(value: object) -> list[str]:
-    """A value's argv items: each is exactly one (never split on spaces: a value cannot smuggle a key)."""
+    """A value's argv items: each is exactly one (never split on spaces: a value cannot smuggle a key); a
+    bool as the trainer's `true`/`false` (a checkbox field's)."""
+    if isinstance(value, bool):
+        return [str(value).lower()]
     return [str(v) for v in value] if isinstance(value, list) else [str(value)]
 
 

@@ -5,18 +5,23 @@ test_launch_fields.py has every field reaching the real trainer, test_page_brows
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from pydantic import ValidationError
 
 from mimickit.runner.args import RUN_ARGS
 from studio.api.bodies import validation_line
-from studio.api.runs import LaunchRun, ResumeRun
+from studio.api.runs import LaunchRun, ResumeRun, run_config
 from studio.api.sweeps import STUDIO_KEYS
 from studio.runs.launch_fields import LAUNCH_FIELDS, SWEEP_FIELDS
 from studio.runs.manager import train_command
+from studio.settings import Settings
 
 # The form's element ids, as the browser tests and the page's other code find them.
-FORM_IDS = ["arg-file", "run-name", "num-envs", "max-samples", "max-hours", "motion-file", "rand-seed"]
+FORM_IDS = [
+    "arg-file", "run-name", "num-envs", "max-samples", "max-hours", "motion-file", "rand-seed", "save-int-models"
+]  # fmt: skip
 
 
 def test_the_table_is_consistent_with_the_trainer() -> None:
@@ -30,6 +35,7 @@ def test_the_table_is_consistent_with_the_trainer() -> None:
     ids = [f.element_id for f in LAUNCH_FIELDS]
     assert len(set(ids)) == len(ids) and set(FORM_IDS) <= set(ids)
     assert set(SWEEP_FIELDS) == {"num_envs", "max_samples", "max_hours", "motion_file", "rand_seed"}
+    assert "save_int_models" in STUDIO_KEYS  # one value for all of a sweep's runs, set beside its values
 
 
 def test_the_same_argv_for_the_same_launch() -> None:
@@ -43,6 +49,7 @@ def test_the_same_argv_for_the_same_launch() -> None:
         "max_samples": 256,
         "max_hours": 1e-09,
         "rand_seed": 7,
+        "save_int_models": True,
         "num_cpus": 1,
         "num_gpus": 0.5,
         "model_file": "/r/1/model.pt",
@@ -52,7 +59,8 @@ def test_the_same_argv_for_the_same_launch() -> None:
     assert argv == [
         "mimickit", "train", "--arg_file", "/a/x.txt", "--out_dir", "/r/1", "--num_envs", "4",
         "--max_samples", "256", "--max_hours", "1e-09", "--motion_file", "/d/clip.pkl", "--rand_seed", "7",
-        "--data_dir", "/data", "--model_file", "/r/1/model.pt", "--devices", "cpu", "cpu", "--logger", "tb",
+        "--save_int_models", "true", "--data_dir", "/data", "--model_file", "/r/1/model.pt",
+        "--devices", "cpu", "cpu", "--logger", "tb",
     ]  # fmt: skip
     assert train_command(["t"], {"arg_file": "a.txt"}, "/r/2") == ["t", "--arg_file", "a.txt", "--out_dir", "/r/2"]
 
@@ -69,6 +77,8 @@ def test_the_same_argv_for_the_same_launch() -> None:
         ({"rand_seed": -1}, "rand_seed: Input should be greater than or equal to 0"),
         ({"num_gpus": 65}, "num_gpus: Input should be less than or equal to 64"),
         ({"name": "a\nb"}, "name: String should match pattern"),
+        ({"save_int_models": "true"}, "save_int_models: Input should be a valid boolean"),
+        ({"save_int_models": 1}, "save_int_models: Input should be a valid boolean"),
         ({"num_env": 4}, "unknown key 'num_env'; did you mean 'num_envs'?"),
     ],
 )
@@ -84,6 +94,20 @@ def test_a_launch_with_every_field_validates() -> None:
     assert (body.num_envs, body.max_hours, body.motion_file, body.num_gpus) == (4, 0.5, None, None)
     with pytest.raises(ValidationError, match="arg_file"):
         LaunchRun()
+
+
+def test_a_checkbox_field_reaches_the_trainer_only_when_ticked(tmp_path: Path) -> None:
+    """`save_int_models`: true is `--save_int_models true`; false (an unticked box) is as not given, so the
+    registry's record and the argv are those of a launch without it."""
+    settings = Settings(runs_dir=tmp_path / "runs").resolved()
+    arg_file = settings.runs_dir / "args" / "x.txt"  # the runs folder's args: inside the allowed folders
+    arg_file.parent.mkdir(parents=True)
+    arg_file.write_text("--num_envs 2\n")
+    ticked = run_config(LaunchRun(arg_file=str(arg_file), save_int_models=True), settings)
+    assert ticked == {"arg_file": str(arg_file), "save_int_models": True}
+    assert train_command(["t"], ticked, "/r/1")[-2:] == ["--save_int_models", "true"]
+    for body in (LaunchRun(arg_file=str(arg_file), save_int_models=False), LaunchRun(arg_file=str(arg_file))):
+        assert run_config(body, settings) == {"arg_file": str(arg_file)}
 
 
 def test_the_fields_as_the_page_gets_them() -> None:
@@ -103,3 +127,8 @@ def test_the_fields_as_the_page_gets_them() -> None:
     assert "--max_hours" in hours["help"] and fields["num_cpus"]["flag"] is None
     assert fields["arg_file"]["required"] and fields["arg_file"]["widget"]["kind"] == "select"
     assert fields["name"]["widget"]["id"] == "run-name" and not fields["name"]["sweepable"]
+    keep = fields["save_int_models"]
+    assert (keep["type"], keep["flag"], keep["default"]) == ("boolean", "--save_int_models", None)
+    assert keep["sweepable"] is False
+    widget = keep["widget"]
+    assert (widget["kind"], widget["id"], widget["step"]) == ("checkbox", "save-int-models", None)

@@ -265,15 +265,18 @@ def test_a_typo_in_the_arg_file_fails_the_run(studio: StudioProcess) -> None:
 
 def test_a_sweep_queues_one_run_per_combination_in_one_group(studio: StudioProcess) -> None:
     arg = str(studio.runs_dir / "args" / "short.txt")
-    values = {"rand_seed": [5, 6], "num_envs": [2], "save_int_models": [True]}
-    r = studio.post("/api/sweeps", {"arg_file": arg, "values": values, "name": "two seeds"})
+    values = {"rand_seed": [5, 6], "num_envs": [2], "test_episodes": [3]}
+    body = {"arg_file": arg, "values": values, "name": "two seeds", "save_int_models": True}  # a launch field: shared
+    r = studio.post("/api/sweeps", body)
     assert r.status_code == 201, r.text
     sweep = r.json()
     names = [run["name"] for run in sweep["runs"]]
-    assert names == [f"two seeds rand_seed={s} num_envs=2 save_int_models=True" for s in (5, 6)]
+    assert names == [f"two seeds rand_seed={s} num_envs=2 test_episodes=3" for s in (5, 6)]
     runs = [wait_status(studio, run["id"], "finished", timeout=120.0) for run in sweep["runs"]]
     assert [(r["summary"]["seed"], r["summary"]["num_envs"]) for r in runs] == [(5, 2), (6, 2)]
-    assert all(r["command"][-2:] == ["--save_int_models", "true"] for r in runs)  # any --key reaches the trainer
+    assert all(r["command"][-2:] == ["--test_episodes", "3"] for r in runs)  # any --key reaches the trainer
+    assert all(r["config"]["save_int_models"] is True for r in runs)
+    assert all(r["command"][r["command"].index("--save_int_models") + 1] == "true" for r in runs)
     assert {r["sweep_id"] for r in runs} == {sweep["id"]} and {r["executor"] for r in runs} == {"local"}
     listed = studio.get(f"/api/sweeps/{sweep['id']}").json()
     assert listed["run_ids"] == [r["id"] for r in runs] and listed["spec"]["values"] == values
