@@ -4,6 +4,7 @@
 import { $, api, withToken } from "./api.js";
 import { fillFitTargets, initCheckpoints, refreshCheckpoints } from "./checkpoints.js";
 import { initCompare } from "./compare.js";
+import { initAnalysis, sceneChanged } from "./analysis.js";
 import { initCurves } from "./curves.js";
 import { evalCheckpointsChanged, fillEvalForm, initEvals, renderEvals } from "./evals.js";
 import { initKeys } from "./keys.js";
@@ -62,7 +63,7 @@ let serverId = null;
 const stream = new StudioStream({
   url: withToken,
   handlers: {
-    scene: (s) => applyState(s),
+    scene: (s) => { applyState(s); sceneChanged(s); },
     rollout: (h) => rolloutView.addRows(h),
     runs: (runs) => { renderRuns(runs); evalCheckpointsChanged(runs); },
     evals: (jobs) => renderEvals(jobs),
@@ -99,6 +100,7 @@ initCheckpoints();
 initRuns(stream);
 initEvals();
 initVideo();
+initAnalysis();
 initKeys();
 // A clicked button must not keep the focus: Enter would press it again instead of play/pause.
 document.addEventListener("mouseup", (ev) => { const b = ev.target.closest && ev.target.closest("button"); if (b) b.blur(); });

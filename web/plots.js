@@ -12,8 +12,9 @@ export class CurvePlot {
   // options: title, xLabel, yLabel, height, window (show the last `window` x units, or those around the
   // cursor when it is further back), keep (x units kept for that, default `window`), yRange ([lo, hi]: the
   // least y range shown, widened to take in every value: an AMP rollout's style reward is above 1),
-  // colors ({name: color}), gaps (true: lines break at `addGap` points instead of spanning missing values);
-  // `cursor` (an x value, or null) draws a dashed line there.
+  // colors ({name: color}), gaps (true: lines break at `addGap` points instead of spanning missing values),
+  // dashed (name => true for a series drawn dashed: a reference beside the simulated one), onPick (x => …,
+  // called with the x of a click in the plot); `cursor` (an x value, or null, `setCursor`) draws a dashed line there.
   constructor(container, options = {}) {
     this.box = container;
     this.options = { height: 150, ...options };
@@ -69,6 +70,14 @@ export class CurvePlot {
 
   markNonfinite(name, x, token) {
     if (Number.isFinite(x)) this.nonfinite.push({ name, x, token });
+  }
+
+  // Only the overlay is drawn again (uPlot keeps the curves' paths): a cursor that follows the player
+  // at 10 Hz costs no re-alignment of thousands of points.
+  setCursor(x) {
+    if (this.cursor === x) return;
+    this.cursor = x;
+    if (this.uplot && !this.pending) this.uplot.redraw(false, false);
   }
 
   setXLabel(label) {
@@ -144,12 +153,14 @@ export class CurvePlot {
         ...names.map((n, i) => ({
           label: n.replace("reward_terms.", ""), stroke: colors[n] || PALETTE[i % PALETTE.length], width: 1.5,
           spanGaps: !o.gaps, points: { show: false }, value: (u, v) => (v === null ? "–" : fmt(v)),
+          ...(o.dashed && o.dashed(n) ? { dash: [6, 4] } : {}),
         }))],
       legend: { show: true, live: true },
       cursor: { drag: { x: false, y: false } },
       hooks: { draw: [(u) => this._drawn(u)] },
     };
     this.uplot = new uPlot(opts, [[], ...names.map(() => [])], this.box);
+    if (o.onPick) this.uplot.over.addEventListener("click", (ev) => o.onPick(this.uplot.posToVal(ev.offsetX, "x")));
   }
 
   _resize() {
@@ -186,6 +197,7 @@ export class CurvePlot {
       shown.add(key);
     }
     if (this.cursor !== null && this.cursor >= x0 && this.cursor <= x1) vline(this.cursor, "#d8dce4", [3, 3], "", 0);
+    this.box.dataset.cursor = this.cursor === null ? "" : String(this.cursor);  // what is drawn, for the page's tests
   }
 }
 

@@ -126,6 +126,11 @@ class DeepMimicEnv(CharEnv, TracksReference):
     def tracks_pose(self) -> bool:
         return True
 
+    @property
+    def ref_char_offset(self) -> tuple[float, float, float]:
+        x, y, z = (float(v) for v in self._ref_char_offset.tolist())
+        return x, y, z
+
     def get_ref_char_id(self) -> int | None:
         return self._ref_char_id if self._enable_ref_char else None
 

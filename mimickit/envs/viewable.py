@@ -61,6 +61,12 @@ class TracksReference(Viewable):
     def reward_weights(self) -> dict[str, float]:
         """{term: weight} of the unweighted terms each step reports in `info["reward_terms"]`."""
 
+    @property
+    @abc.abstractmethod
+    def ref_char_offset(self) -> tuple[float, float, float]:
+        """Where the reference character (the ghost) is drawn relative to the reference's own root
+        position (metres): a viewer comparing the two paths takes it off the ghost's."""
+
     @abc.abstractmethod
     def body_pos_errors(self) -> torch.Tensor:
         """Each env's per-body position error [N, J] (metres) of its current state against its reference."""

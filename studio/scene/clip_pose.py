@@ -100,16 +100,23 @@ def pose_motion(clip_path: Path, char_path: Path, motion: Motion, char: KinCharM
     with torch.no_grad():
         body_pos, body_rot = char.forward_kinematics(frames[:, :3], root_rot, joint_rot)
     feet = foot_bodies(char)
-    low = np.zeros((motion.num_frames, len(feet)), dtype=np.float32)
+    low = feet_low_z(char, feet, body_pos, body_rot)
+    xmat = tu.quat_to_matrix(body_rot).numpy()
+    return ClipPose(clip_path, char_path, motion, char, body_pos.numpy(), body_rot.numpy(), xmat, feet, low)
+
+
+def feet_low_z(char: KinCharModel, feet: list[str], body_pos: torch.Tensor, body_rot: torch.Tensor) -> np.ndarray:
+    """[T, F] lowest point of each foot's collision shapes, given posed bodies body_pos [T, J, 3] and
+    body_rot [T, J, 4] (xyzw) in the character's body order."""
+    low = np.zeros((body_pos.shape[0], len(feet)), dtype=np.float32)
     for i, name in enumerate(feet):
-        with collect_warnings():  # it re-reads the MJCF: same warnings as above
+        with collect_warnings():  # it re-reads the MJCF: the warnings its load gave already
             ids, pts = body_surface_points(char, [name])
         if len(ids):
             low[:, i] = lowest_point_z(char, ids, pts, body_pos, body_rot).numpy()
         else:  # a foot without collision shapes: its origin stands in
             low[:, i] = body_pos[:, char.get_body_id(name), 2].numpy()
-    xmat = tu.quat_to_matrix(body_rot).numpy()
-    return ClipPose(clip_path, char_path, motion, char, body_pos.numpy(), body_rot.numpy(), xmat, feet, low)
+    return low
 
 
 def foot_bodies(char: KinCharModel) -> list[str]:

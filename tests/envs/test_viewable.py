@@ -31,6 +31,7 @@ def test_a_tracking_env_offers_what_it_declares() -> None:
     try:
         assert isinstance(env, TracksReference)
         assert env.get_ref_char_id() is not None  # the ghost, with visualize
+        assert env.ref_char_offset == (2.0, 0.0, 0.0)  # the env yaml's ref_char_offset: where the ghost stands
         env.reset()
         _, _, _, info = env.step(torch.zeros(1, env.get_action_space().shape[0]))
         assert set(info["reward_terms"]) == set(env.reward_weights)
