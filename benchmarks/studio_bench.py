@@ -22,6 +22,9 @@ mostly the queue in front of the client; `--client httpx` measures with it.
 
 `--rollout-seconds S` then rolls out `--checkpoint` (the demo policy by default) in the scene and reads
 its step count from `/api/scene/state` over S seconds: steps/s against its control rate (30/s).
+`--page-clicks N` then: headless Chromium at 1280×720 clicks Play/Pause and Step N times each while the
+clip plays in the visible 3D view, the page timing each click to its visible change
+(benchmarks/page_latency.py), with the page's 3D view at "auto" and at "full" resolution.
 `--idle-seconds S` last: the rollout closed, the clip paused, no stream and no viser client open, the
 server's CPU (user + system, /proc/PID/stat) over S seconds as a share of one core; needs the server
 started here or `--server-pid`. All of it inside `--train-cmd`:
@@ -44,6 +47,7 @@ import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
@@ -55,6 +59,9 @@ import websockets
 import zstandard
 
 from studio.settings import is_loopback
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.page_latency import click_latency, print_summary, summary  # noqa: E402 - a sibling script
 
 ENDPOINTS = ["/api/health", "/api/scene/state", "/api/runs", "/api/motions"]
 DEMO_ROLLOUT = {
@@ -328,6 +335,9 @@ def parse_args() -> argparse.Namespace:
         default=json.dumps(DEMO_ROLLOUT),
         help="the rollout: a JSON body of POST /api/scene/load_rollout (default: the demo policy)",
     )
+    ap.add_argument(
+        "--page-clicks", type=int, help="then: Chromium clicks Play/Pause/Step while the clip plays (page_latency.py)"
+    )
     ap.add_argument("--idle-seconds", type=float, help="last: the server's CPU, scene paused, nothing connected")
     ap.add_argument("--server-pid", type=int, help="with --url: the server's pid (for --idle-seconds)")
     ap.add_argument("--json", action="store_true")
@@ -342,7 +352,7 @@ def parse_args() -> argparse.Namespace:
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     """Every measurement, in order, against one server (and inside `--train-cmd`): the raw figures."""
     checkpoint = json.loads(args.checkpoint)
-    m: dict[str, Any] = {"errors": 0, "events": []}
+    m: dict[str, Any] = {"errors": 0, "events": [], "page": None}
     with (
         studio_server(args) as (base, pid),
         background(args.train_cmd),
@@ -360,6 +370,9 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         else:
             m["latency"] = asyncio.run(api_latency(base, args.clients, args.requests))
         m["rollout"] = rollout_rate(c, checkpoint, args.rollout_seconds) if args.rollout_seconds else None
+        if args.page_clicks:
+            c.post("/api/scene/load_clip", json={"path": args.clip, "play": True}).raise_for_status()
+            m["page"] = click_latency(base, args.page_clicks, ["auto", "full"], rounds=1)
         m["idle"] = idle_cpu(c, pid, args.idle_seconds) if args.idle_seconds else None
         if not m["idle"]:
             c.post("/api/scene/pause", json={})
@@ -394,6 +407,8 @@ def summarise(args: argparse.Namespace, m: dict[str, Any]) -> dict[str, Any]:
             client=args.client,
         )
     result.update(rollout=m["rollout"], idle=m["idle"])
+    if m["page"]:
+        result["page_click_ms"] = {q: summary(r) for q, r in m["page"].items()}
     return result
 
 
@@ -422,6 +437,8 @@ def report(args: argparse.Namespace, m: dict[str, Any], result: dict[str, Any]) 
             f"(control rate {rollout['control_rate']:g}/s; 1-s windows {rollout['slowest_1s']}"
             f"-{rollout['fastest_1s']})"
         )
+    if m["page"]:
+        print_summary("  click to visible change in the page", m["page"])
     if idle := m["idle"]:
         print(
             f"  idle (scene paused, no stream, no viser client): server CPU {idle['core_percent']}% of a core "

@@ -11,6 +11,7 @@ import { initKeys } from "./keys.js";
 import { initLibrary, loadLibrary, onLibraryLoaded } from "./library.js";
 import { applyState, initPlayer, rolloutView } from "./player.js";
 import { addLog, addMetrics, fillLaunchForm, initRuns, renderRuns } from "./runs.js";
+import { countSceneFrames, initSceneQuality, sceneFps, withSceneDpr } from "./scene_view.js";
 import { StudioStream } from "./stream.js";
 import { initVideo, renderVideos } from "./video.js";
 
@@ -29,7 +30,7 @@ let sceneLoads = 0;
 function showScene() {
   if (!sceneUrl) return;
   sceneLoads += 1;
-  const url = withToken(sceneUrl);
+  const url = withSceneDpr(withToken(sceneUrl));
   $("scene").src = sceneLoads === 1 ? url : `${url}${url.includes("?") ? "&" : "?"}reload=${sceneLoads}`;
 }
 
@@ -44,7 +45,11 @@ $("scene").addEventListener("load", () => {
   const doc = $("scene").contentDocument;
   if (doc && doc.head) doc.head.append(Object.assign(doc.createElement("style"), { textContent: SCENE_NARROW_CSS }));
   if (doc) followStudioFocus($("scene").contentWindow);
+  if (doc) countSceneFrames($("scene").contentWindow);
 });
+// What the 3D view really draws, beside the player (a clip plays at its rate on the server whatever the
+// view keeps up with).
+setInterval(() => { $("scene-fps").textContent = `3D ${sceneFps()} fps`; }, 1000);
 
 // viser's client (1.1.1, WebsocketInterface.tsx) retries a lost or failed websocket only while its own
 // document has the focus, which the embedded scene rarely has: the studio's page has it. A scene whose
@@ -102,6 +107,7 @@ initEvals();
 initVideo();
 initAnalysis();
 initKeys();
+initSceneQuality(showScene);
 // A clicked button must not keep the focus: Enter would press it again instead of play/pause.
 document.addEventListener("mouseup", (ev) => { const b = ev.target.closest && ev.target.closest("button"); if (b) b.blur(); });
 

@@ -10,6 +10,7 @@ let pendingCommands = 0;
 let shownClip = null;
 let sceneMode = "clip";
 let last = null; // the latest scene state
+let predicted = null; // the controls the commands on their way will set
 
 export const sceneState = () => last;
 
@@ -28,27 +29,65 @@ export function applyState(s) {
     $("clip-label").textContent = `${s.clip.split("/").pop()} on ${s.char.split("/").pop()}`;
     $("clip-label").title = `${s.clip} on ${s.char}`;
   }
-  const t = $("timeline");
-  t.max = Math.max(0, s.num_frames - 1);
-  if (!scrubbing) t.value = s.frame;
-  $("frame-label").textContent = rollout
-    ? `step ${s.rollout.shown.step} · ${s.time.toFixed(2)} s${s.rollout.live ? "" : ` · history ${s.frame}/${s.num_frames - 1}`}`
-    : s.clip ? `${s.frame}/${s.num_frames - 1} · ${s.time.toFixed(2)} s` : "–";
-  $("play").textContent = s.playing ? "Pause" : "Play";
-  if (pendingCommands > 0) return;  // a pushed state older than the click must not flip the controls back
+  // A pushed state older than a click must not flip the controls back: until the command's answer the
+  // controls show what the click predicted.
+  showControls(pendingCommands > 0 && predicted ? predicted : s);
+  if (pendingCommands > 0) return;
   $("loop").checked = s.loop;
   $("follow").checked = s.follow;
   if (document.activeElement !== $("speed")) $("speed").value = String(s.speed);
 }
 
+function showControls(s) {
+  const t = $("timeline");
+  t.max = Math.max(0, s.num_frames - 1);
+  if (!scrubbing) t.value = s.frame;
+  $("frame-label").textContent = s.mode === "rollout"
+    ? `step ${s.rollout.shown.step} · ${s.time.toFixed(2)} s${s.rollout.live ? "" : ` · history ${s.frame}/${s.num_frames - 1}`}`
+    : s.clip ? `${s.frame}/${s.num_frames - 1} · ${s.time.toFixed(2)} s` : "–";
+  $("play").textContent = s.playing ? "Pause" : "Play";
+}
+
+// What a command will make of the controls, shown at the click: the page does not wait for the server
+// (whose answer, queued behind the 3D view's frames, took seconds) to show a pause or a step. The server
+// decides; its answer replaces the guess. Rules as the players' (studio/scene/player.py, rollout.py).
+function predict(s, path, body) {
+  if (!s || !s.num_frames) return null;
+  const p = { ...s };
+  const move = (frame) => {
+    const n = s.num_frames;
+    p.frame = s.mode === "clip" && s.loop ? ((frame % n) + n) % n : Math.max(0, Math.min(frame, n - 1));
+    if (s.mode === "clip" && s.fps) p.time = p.frame / s.fps;
+  };
+  if (path === "toggle") p.playing = !s.playing;
+  else if (path === "play" || path === "pause") p.playing = path === "play";
+  else if (path === "seek" && body.frame !== undefined) {
+    move(body.frame);
+    if (s.mode === "rollout") p.playing = false;
+  } else if (path === "step") {
+    p.playing = false;
+    const frames = body.frames ?? 1;
+    if (s.mode === "clip") move(s.frame + frames);
+    else if (s.rollout.live && frames > 0) {  // simulates on: the next steps of the live end
+      p.rollout = { ...s.rollout, shown: { ...s.rollout.shown, step: s.rollout.shown.step + frames } };
+      p.time = s.time + frames / s.fps;
+    } else return { ...p, frame: s.frame };
+  } else return null;
+  return p;
+}
+
 export async function playerCommand(path, body) {
+  const guess = predict(predicted || last, path, body || {});
   pendingCommands += 1;
+  if (guess) { predicted = guess; showControls(guess); }
+  const settle = () => { pendingCommands -= 1; if (pendingCommands === 0) predicted = null; };
   try {
     const s = await api("POST", `/api/scene/${path}`, body);
-    pendingCommands -= 1;
+    settle();
     applyState(s);
   } catch (e) {
-    pendingCommands -= 1;
+    settle();
+    if (last) applyState(last);  // the guess did not happen
     $("clip-label").textContent = `${path}: ${e.message}`;
   }
 }
@@ -79,7 +118,8 @@ export async function loadRollout(body) {
 function sideLabel(r, side) {
   const who = r.run_id !== null ? `run #${r.run_id} ${r.run_name || ""}` : r.checkpoint.split("/").slice(-2).join("/");
   const saved = new Date(r.checkpoint_mtime * 1000).toLocaleTimeString();
-  const trained = r.samples ? `iteration ${r.iteration}, ${(r.samples / 1e6).toFixed(2)} M samples` : "no training record";
+  const samples = r.samples >= 1e6 ? `${(r.samples / 1e6).toFixed(2)} M` : r.samples.toLocaleString("en-US");
+  const trained = r.samples ? `iteration ${r.iteration}, ${samples} samples` : "no training record";
   const terms = Object.entries(r.reward_terms).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(" · ");
   return `${side ? `${side}: ` : ""}${who} · ${trained} · file saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
     ` · episode ${r.episode} · return ${r.episode_return.toFixed(2)}${r.waiting ? " · ended, waiting for the other" : ""}` +

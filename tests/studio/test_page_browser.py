@@ -312,3 +312,69 @@ def test_a_sweep_from_the_form_runs_one_per_value_and_compares_as_a_group(browse
     assert len(server.get("/api/runs").json()) == len(before) + 2
     assert page.errors == []
     page.close()
+
+
+def held_commands(page, path: str) -> list:
+    """The page's requests to `POST /api/scene/{path}`, held (not sent on) until the test continues them:
+    what a server whose answer is slow (or queued behind the 3D view's frames) looks like to the page."""
+    held: list = []
+    page.route(f"**/api/scene/{path}", lambda route: held.append(route))
+    return held
+
+
+def test_play_pause_and_step_show_at_once_and_the_answer_settles_them(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    server.post("/api/scene/play")
+    wait_for(lambda: page.locator("#play").inner_text() == "Pause", 60, "the page to show the clip playing", page)
+    toggles = held_commands(page, "toggle")
+    page.click("#play")
+    wait_for(lambda: toggles, 60, "the click's toggle request", page)
+    # The server has not answered (nor heard of it): the page shows the pause already.
+    assert page.locator("#play").inner_text() == "Play" and state(server)["playing"]
+    time.sleep(0.5)  # stream states of the still playing clip keep arriving: they must not flip it back
+    assert page.locator("#play").inner_text() == "Play"
+    toggles[0].continue_()
+    wait_for(lambda: not state(server)["playing"], 60, "the held pause to reach the server", page)
+    frame = wait_for(settled_frame(server), what="the paused frame")
+    steps = held_commands(page, "step")
+    page.click("#step")
+    wait_for(lambda: steps, 60, "the click's step request", page)
+    n = state(server)["num_frames"]
+    assert page.locator("#frame-label").inner_text().startswith(f"{(frame + 1) % n}/{n - 1} ")
+    assert state(server)["frame"] == frame
+    steps[0].continue_()
+    wait_for(lambda: state(server)["frame"] == (frame + 1) % n, 60, "the held step to reach the server", page)
+    assert page.locator("#frame-label").inner_text().startswith(f"{(frame + 1) % n}/")
+    page.close()
+
+
+def test_a_refused_command_puts_the_controls_back(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    server.post("/api/scene/pause")
+    wait_for(lambda: page.locator("#play").inner_text() == "Play", 60, "the page to show the clip paused", page)
+    refused = '{"detail": "the scene is busy"}'
+    page.route("**/api/scene/toggle", lambda route: route.fulfill(status=503, body=refused))
+    page.click("#play")
+    wait_for(lambda: "toggle: the scene is busy" in page.locator("#clip-label").inner_text(), 60, "the refusal", page)
+    assert page.locator("#play").inner_text() == "Play" and not state(server)["playing"]
+    page.close()
+
+
+def test_the_3d_view_resolution_is_asked_of_viser_and_its_frame_rate_shown(browser, server: StudioProcess) -> None:
+    page = open_page(browser, server, 1280, 720)
+    server.post("/api/scene/play")
+    software = page.evaluate("() => import('/web/scene_view.js').then((m) => m.isSoftwareGl())")
+    auto = "fixedDpr=0.5" if software else None  # CI's Chromium draws WebGL on the CPU (SwiftShader)
+    src = page.locator("#scene").get_attribute("src")
+    assert (auto in src) if auto else ("fixedDpr" not in src), src
+    fps = lambda: int(page.locator("#scene-fps").inner_text().split()[1])  # noqa: E731  "3D 12 fps"
+    wait_for(lambda: fps() > 0, 60, "the 3D view's frame rate while the clip plays", page)
+    page.select_option("#scene-quality", "quarter")
+    wait_for(lambda: "fixedDpr=0.25" in page.locator("#scene").get_attribute("src"), 60, "the quarter view", page)
+    page.frame_locator("#scene").locator("canvas").first.wait_for(timeout=60_000)
+    wait_for(lambda: fps() > 0, 60, "the quarter view drawing", page)
+    page.reload()  # the choice is the browser's: kept over a reload
+    wait_for(lambda: "fixedDpr=0.25" in (page.locator("#scene").get_attribute("src") or ""), 60, "kept", page)
+    assert page.locator("#scene-quality").input_value() == "quarter"
+    page.evaluate("localStorage.removeItem('studio-scene-quality')")
+    page.close()
