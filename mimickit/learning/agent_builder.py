@@ -20,6 +20,7 @@ from mimickit.learning.agent_config import (
     AWRAgentConfig,
     BaseAgentConfig,
     DummyAgentConfig,
+    LCPAgentConfig,
     PPOAgentConfig,
 )
 from mimickit.learning.base_agent import BaseAgent
@@ -37,9 +38,10 @@ AGENTS: Registry[BaseAgentConfig, BaseAgent] = Registry(
         "AMP": Entry(AMPAgentConfig, "mimickit.learning.amp_agent:AMPAgent"),
         "ADD": Entry(ADDAgentConfig, "mimickit.learning.add_agent:ADDAgent"),
         "ASE": Entry(ASEAgentConfig, "mimickit.learning.ase_agent:ASEAgent"),
+        "LCP": Entry(LCPAgentConfig, "mimickit.learning.ppo_agent:PPOAgent"),
         "Dummy": Entry(DummyAgentConfig, "mimickit.learning.dummy_agent:DummyAgent"),
     },
-    not_ported={"LCP": "not ported yet", "SMP": "not ported yet"},
+    not_ported={"SMP": "not ported yet"},
 )
 """Every agent by its yaml `agent_name`: `load_agent_config` and the builders below use this table."""
 

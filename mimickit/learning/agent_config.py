@@ -101,12 +101,21 @@ class ActorCriticAgentConfig(BaseAgentConfig):
     exp_anneal_samples: float = Field(math.inf, gt=0, allow_inf_nan=True)
     exp_prob_beg: float = Field(default=1.0, ge=0, le=1)
     exp_prob_end: float = Field(default=1.0, ge=0, le=1)
+    lcp_weight: float = Field(default=0.0, ge=0)
+    """The Lipschitz-constraint penalty's weight (LCP; 0: off): any actor-critic agent can take it."""
 
 
 class PPOAgentConfig(ActorCriticAgentConfig):
     agent_name: Literal["PPO"] = "PPO"
     ppo_clip_ratio: float = Field(gt=0)
     norm_adv_clip: float = Field(gt=0)
+
+
+class LCPAgentConfig(PPOAgentConfig):
+    """The reference's LCP agent: PPO with a required `lcp_weight` (its G1 config: 0.002)."""
+
+    agent_name: Literal["LCP"] = "LCP"  # type: ignore[assignment]
+    lcp_weight: float = Field(ge=0)
 
 
 class AWRAgentConfig(ActorCriticAgentConfig):

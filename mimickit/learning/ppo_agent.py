@@ -4,7 +4,8 @@ Per iteration: roll out `steps_per_iter` steps of every env (each env explores w
 `exp_prob`, else acts with the mean); compute TD(λ) targets and advantages once with the critic and
 normaliser as they were before this iteration; then the critic (`critic_epochs` over the buffer in
 minibatches of ceil(critic_batch_size × num_envs)), then the actor (clipped surrogate on the
-exploring rows + action-bound / entropy / regularisation penalties).
+exploring rows + action-bound / entropy / regularisation penalties, and with `lcp_weight` the LCP
+penalty: the reference's LCP agent is this class with that weight).
 """
 
 from __future__ import annotations
@@ -136,9 +137,20 @@ class PPOAgent(BaseAgent):
         )
         actor_batch = int(math.ceil(cfg.actor_batch_size * num_envs))
         actor_steps = int(math.ceil(num_samples / actor_batch)) * cfg.actor_epochs
-        info.update(
-            self._run_updates(self._actor_optimizer, self._compute_actor_loss, "actor_loss", actor_batch, actor_steps)
-        )
+        actor_loss = self._compute_actor_loss if cfg.lcp_weight == 0 else self._actor_loss_with_lcp
+        info.update(self._run_updates(self._actor_optimizer, actor_loss, "actor_loss", actor_batch, actor_steps))
+        return info
+
+    def _actor_loss_with_lcp(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor] | None:
+        """The agent's actor loss plus `lcp_weight` × the LCP penalty (`rl_util.lcp_penalty`), logged as
+        `lcp_loss`. As the reference's LCPAgent: over every row of the minibatch, exploring or not; the
+        gradient is taken with respect to the actor's whole input (the observation; ASE's also holds z)."""
+        info = self._compute_actor_loss(batch)
+        if info is None:
+            return None
+        lcp = rl_util.lcp_penalty(self._model.eval_actor, self._net_input(batch), batch["norm_action"])
+        info["actor_loss"] = info["actor_loss"] + self.config.lcp_weight * lcp
+        info["lcp_loss"] = lcp.detach()
         return info
 
     def _run_updates(

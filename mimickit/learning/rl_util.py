@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import torch
 
 from mimickit.envs.base_env import DoneFlags
+
+if TYPE_CHECKING:
+    from mimickit.learning.distributions import GaussianDiag
 
 
 def compute_td_lambda_return(
@@ -48,6 +52,18 @@ def action_bound_loss(norm_mean: torch.Tensor) -> torch.Tensor:
     below = (norm_mean + 1.0).clamp_max(0.0)
     above = (norm_mean - 1.0).clamp_min(0.0)
     return (below.square() + above.square()).sum(dim=-1)
+
+
+def lcp_penalty(
+    eval_actor: Callable[[torch.Tensor], GaussianDiag], norm_input: torch.Tensor, norm_action: torch.Tensor
+) -> torch.Tensor:
+    """Lipschitz-constrained policies' penalty: the mean over rows of ‖∇ₓ log π(a|x)‖², x the actor's
+    normalised input, a the normalised action taken. Built with `create_graph` so that the actor's
+    optimiser steps through it (a gradient of a gradient)."""
+    x = norm_input.detach().requires_grad_(True)
+    logp = eval_actor(x).log_prob(norm_action)
+    (grad,) = torch.autograd.grad(logp.sum(), x, create_graph=True)
+    return grad.square().sum(dim=-1).mean()
 
 
 def awr_weights(norm_adv: torch.Tensor, temp: float, weight_clip: float) -> torch.Tensor:

@@ -23,7 +23,7 @@ def test_shipped_humanoid_yamls_have_the_reference_values():
     "text, needle",
     [
         ("agent_name: PPO\nmodel: {}\n", "missing required key"),
-        ("agent_name: LCP\n", "not ported yet"),
+        ("agent_name: SMP\n", "not ported yet"),
         ("discount: 0.9\n", "missing required key 'agent_name'"),
     ],
 )
