@@ -1,9 +1,10 @@
 // Compare runs: the runs ticked in the list, one plot per metric with one curve per run (same x axis and
 // smoothing as the single-run curves), their resumes and divergences marked, and the settings (args.json,
 // the configs as trained, the launch form's values) on which they differ.
-import { $, api, el } from "./api.js";
+import { $, api, el, withToken } from "./api.js";
 import { CurvePlot, PALETTE } from "./plots.js";
-import { GROUPS, X_LABELS, fillPlots, groupOf, markDivergence, onViewChange, view } from "./curves.js";
+import { X_LABELS, fillPlots, logOptions, markDivergence, onViewChange, plotKeyOf, plotOrder, view } from "./curves.js";
+import { isMetric, isShown, noteMetrics, onPrefsChange } from "./metric_picker.js";
 
 let shown = false;
 let data = null; // {runs: [{id, name, status, diverged, rows}], diff}
@@ -23,15 +24,34 @@ export const compareSelection = {
 
 export function initCompare() {
   $("compare-button").addEventListener("click", () => showCompare(true));
-  onViewChange(() => { if (shown && data) render(); });
+  $("csv-button").addEventListener("click", downloadCsv);
+  onViewChange(() => { if (shown && data) render(); csvButton(); });
+  onPrefsChange(() => { if (shown && data) render(); });
+}
+
+// The whole metrics.jsonl of the run shown (or of the runs compared) as CSV, from the server: the page
+// holds only the rows it drew.
+function downloadCsv() {
+  const url = shown ? `/api/compare/metrics.csv?runs=${shownIds.join(",")}` : `/api/runs/${view.run}/metrics.csv`;
+  el("a", { href: withToken(url), download: "" }).click();
+}
+
+let shownIds = [];
+function csvButton() {
+  const b = $("csv-button");
+  b.disabled = shown ? shownIds.length === 0 : view.run === null;
+  b.title = shown ? `download the metrics of runs ${shownIds.map((i) => `#${i}`).join(", ")} as one CSV (a run column first)`
+    : "download the selected run's metrics.jsonl as CSV";
 }
 
 export async function showCompare(on) {
   shown = on;
   $("compare").hidden = !on;
   $("curves").hidden = on;
-  if (!on) return;
   const ids = [...compareSelection.ids].sort((a, b) => a - b);
+  shownIds = ids;
+  csvButton();
+  if (!on) return;
   $("curves-title").textContent = `Compare · ${ids.map((i) => `#${i}`).join(", ")}`;
   $("compare-diff").textContent = "reading the runs…";
   try {
@@ -45,18 +65,27 @@ export async function showCompare(on) {
   if (shown) render();
 }
 
+// One plot per picked metric (pinned first), its log choice its unit's; the cursors of all move together
+// and each legend gives every run's value nearest the cursor (uPlot's cursor sync and hover).
 function render() {
   const metrics = new Set();
-  for (const r of data.runs) for (const row of r.rows) for (const k of Object.keys(row)) if (groupOf(k)) metrics.add(k);
-  const order = [...metrics].sort((a, b) => rank(a) - rank(b) || a.localeCompare(b));
+  for (const r of data.runs) {
+    for (const row of r.rows) {
+      noteMetrics(Object.keys(row));
+      for (const [k, v] of Object.entries(row)) if (isMetric(k) && isShown(k) && (typeof v === "number" || row.nonfinite?.[k])) metrics.add(k);
+    }
+  }
+  const order = [...metrics].sort(plotOrder);
   const box = $("compare-plots");
+  for (const p of plots.values()) p.destroy();
   box.replaceChildren();
   plots = new Map();
   const colors = Object.fromEntries(data.runs.map((r, i) => [label(r), PALETTE[i % PALETTE.length]]));
   for (const m of order) {
     const div = el("div", { class: "plot", "data-metric": m });
     box.append(div);
-    const p = new CurvePlot(div, { title: m, xLabel: X_LABELS[view.x], yLabel: m.replace("reward_terms.", ""), colors });
+    const p = new CurvePlot(div, { title: m, xLabel: X_LABELS[view.x], yLabel: m.replace("reward_terms.", ""), colors,
+      ...logOptions(plotKeyOf(m)), sync: "compare" });
     p.smoothing = view.smoothing;
     plots.set(m, p);
   }
@@ -70,7 +99,6 @@ function render() {
 }
 
 const label = (r) => `#${r.id} ${r.name}`;
-const rank = (k) => GROUPS.indexOf(groupOf(k));
 
 function renderDiff() {
   const box = $("compare-diff");

@@ -15,6 +15,9 @@ export class CurvePlot {
   // colors ({name: color}), gaps (true: lines break at `addGap` points instead of spanning missing values),
   // dashed (name => true for a series drawn dashed: a reference beside the simulated one), onPick (x => …,
   // called with the x of a click in the plot); `cursor` (an x value, or null, `setCursor`) draws a dashed line there.
+  // log (a log y axis: values ≤ 0 are not drawn, and the plot says how many), onLog (on => …: the plot
+  // shows a "log" toggle, which calls it), nearest (the legend gives each series' value nearest the cursor:
+  // compared runs have their rows at different x), sync (a key: plots of one key move their cursors together).
   constructor(container, options = {}) {
     this.box = container;
     this.options = { height: 150, ...options };
@@ -27,7 +30,41 @@ export class CurvePlot {
     this.uplot = null;
     this.names = ""; // the series the uPlot instance was built for
     this.pending = false;
-    new ResizeObserver(() => this._resize()).observe(container);
+    this.dropped = 0; // values ≤ 0 a log axis did not draw
+    if (this.options.onLog) this._logTools();
+    this.resizer = new ResizeObserver(() => this._resize());
+    this.resizer.observe(container);
+    this.draw();
+  }
+
+  // A plot taken off the page: its uPlot leaves its cursor-sync group (it would go on being moved).
+  destroy() {
+    this.resizer.disconnect();
+    if (this.uplot) this.uplot.destroy();
+    this.uplot = null;
+    this.dead = true;  // a frame already asked for draws nothing
+  }
+
+  // The "log" toggle and the note of what a log axis leaves out, over the plot's top right corner.
+  _logTools() {
+    const button = document.createElement("button");
+    button.className = "plot-log";
+    button.textContent = "log";
+    button.title = "log scale for this plot's y axis (values ≤ 0 are left out)";
+    button.addEventListener("click", (ev) => { ev.stopPropagation(); this.options.onLog(!this.options.log); });
+    this.note = document.createElement("span");
+    this.note.className = "plot-note";
+    const tools = document.createElement("div");
+    tools.className = "plot-tools";
+    tools.append(this.note, button);
+    this.box.append(tools);
+    this.logButton = button;
+  }
+
+  setLog(on) {
+    if (!!this.options.log === on) return;
+    this.options.log = on;
+    this.names = "";  // the y scale's distribution is fixed at construction: build again
     this.draw();
   }
 
@@ -97,7 +134,7 @@ export class CurvePlot {
   draw() {
     if (this.pending) return;
     this.pending = true;
-    requestAnimationFrame(() => { this.pending = false; this._draw(); });
+    requestAnimationFrame(() => { this.pending = false; if (!this.dead) this._draw(); });
   }
 
   _draw() {
@@ -109,6 +146,16 @@ export class CurvePlot {
     const key = names.join("\u0000");
     if (!this.uplot || key !== this.names) this._build(names, key);
     this.uplot.setData(this._aligned(names), true);
+    this._showLog();
+  }
+
+  _showLog() {
+    const log = !!this.options.log;
+    this.box.dataset.log = String(log);
+    this.box.dataset.dropped = String(this.dropped);
+    if (!this.logButton) return;
+    this.logButton.setAttribute("aria-pressed", String(log));
+    this.note.textContent = this.dropped ? `${this.dropped} values ≤ 0 not drawn` : "";
   }
 
   // uPlot wants one x array and, per series, a y (or null) for each x.
@@ -125,11 +172,17 @@ export class CurvePlot {
       x = x.filter((v) => v >= end - w && v <= end);
     }
     const index = new Map(x.map((v, i) => [v, i]));
-    const data = [x];
+    const data = [x], log = !!this.options.log;
+    this.dropped = 0;
     for (const n of names) {
       const s = this.series.get(n), y = new Array(x.length).fill(null);
       const ys = smooth(s.ys, this.smoothing);
-      s.xs.forEach((px, i) => { const j = index.get(px); if (j !== undefined) y[j] = ys[i]; });
+      s.xs.forEach((px, i) => {
+        const j = index.get(px);
+        if (j === undefined) return;
+        if (log && ys[i] <= 0) this.dropped += 1;  // no place on a log axis: left out, and counted
+        else y[j] = ys[i];
+      });
       data.push(y);
     }
     return data;
@@ -140,13 +193,16 @@ export class CurvePlot {
     this.names = key;
     const o = this.options, colors = o.colors || {};
     const yRange = o.yRange;
+    const y = o.log
+      ? { distr: 3, log: 10, range: (u, lo, hi) => (lo === null ? [1, 10] : uPlot.rangeLog(lo, hi, 10, true)) }
+      : { range: (u, lo, hi) => (yRange ? coverRange(yRange, lo, hi) : padRange(lo, hi)) };
+    // uPlot's own hover: `skip` null values makes each series' legend value its nearest point, not "–".
+    const cursor = { drag: { x: false, y: false }, ...(o.nearest ? { hover: { skip: [null, undefined] } } : {}),
+      ...(o.sync ? { sync: { key: o.sync } } : {}) };
     const opts = {
       width: Math.max(100, this.box.clientWidth), height: o.height,
       title: o.title,
-      scales: {
-        x: { time: false },
-        y: { range: (u, lo, hi) => (yRange ? coverRange(yRange, lo, hi) : padRange(lo, hi)) },
-      },
+      scales: { x: { time: false }, y },
       axes: [{ ...AXIS, label: o.xLabel, size: 34, labelSize: 14, values: (u, v) => v.map(fmt) },
              { ...AXIS, label: o.yLabel, size: 48, labelSize: 14, values: (u, v) => v.map(fmt) }],
       series: [{ label: o.xLabel || "x", value: (u, v) => (v === null ? "–" : fmt(v)) },
@@ -156,7 +212,7 @@ export class CurvePlot {
           ...(o.dashed && o.dashed(n) ? { dash: [6, 4] } : {}),
         }))],
       legend: { show: true, live: true },
-      cursor: { drag: { x: false, y: false } },
+      cursor,
       hooks: { draw: [(u) => this._drawn(u)] },
     };
     this.uplot = new uPlot(opts, [[], ...names.map(() => [])], this.box);

@@ -1,11 +1,13 @@
 // The runs panel: the launch form, the run list (pushed by the stream, updated in place) with each run's
-// actions and its "compare" tick, the selected run's curves and console.
+// actions, its "compare" tick, tags and notes (run_labels.js, also the list's filter), the selected run's
+// curves and console.
 import { $, api, el } from "./api.js";
 import { refreshCheckpoints, inspectCheckpoint } from "./checkpoints.js";
-import { addRows, clearCurves, setDiverged } from "./curves.js";
+import { addRows, clearCurves, setCurvesRun, setDiverged } from "./curves.js";
 import { compareSelection, showCompare } from "./compare.js";
 import { startEval } from "./evals.js";
 import { loadRollout } from "./player.js";
+import { initRunFilter, labelParts, openLabels, runMatches, updateLabels } from "./run_labels.js";
 
 let stream = null;
 let selectedRun = null;
@@ -105,6 +107,7 @@ async function clipsForArgFile() {
 
 export function initRuns(theStream) {
   stream = theStream;
+  initRunFilter(filterRuns);
   launchFieldsReady().catch(() => {});  // fillLaunchForm says when it failed
   $("launch").addEventListener("submit", async (ev) => {
     ev.preventDefault();
@@ -187,8 +190,16 @@ function drawRuns(runs) {
   if (checkpointsKey !== null && key !== checkpointsKey) refreshCheckpoints();
   checkpointsKey = key;
   compareSelection.changed();
+  filterRuns();
   const selected = runs.find((r) => r.id === selectedRun);
   if (selected && selected.status === "diverged") divergenceOf(selected.id);
+}
+
+// The filter applies to each list pushed, so a run that starts or ends keeps to it.
+function filterRuns() {
+  let n = 0;
+  for (const { node, run } of runNodes.values()) { node.hidden = !runMatches(run); n += node.hidden ? 0 : 1; }
+  $("run-filter-count").textContent = $("run-filter").value.trim() ? `${n} of ${runNodes.size}` : "";
 }
 
 let divergenceAsked = null;
@@ -225,11 +236,13 @@ function buildRunNode(run) {
   f.progress = el("progress", { "data-field": "progress" });
   f.reason = el("div", { class: "meta reason", "data-field": "reason" });
   f.resumes = el("span", {});
+  labelParts(entry, refreshRuns);
   f.compare = el("input", { type: "checkbox", "data-compare": run.id, title: "compare this run with the others ticked",
     onclick: (ev) => ev.stopPropagation(),
     onchange: (ev) => compareSelection.toggle(run.id, ev.target.checked) });
   entry.node = el("div", { class: "item", "data-run-id": run.id, onclick: () => selectRun(run.id) },
-    el("div", {}, el("label", { class: "compare-tick", onclick: (ev) => ev.stopPropagation() }, f.compare), f.title, " ", field("status")),
+    el("div", {}, el("label", { class: "compare-tick", onclick: (ev) => ev.stopPropagation() }, f.compare), f.title, " ", field("status"), " ", f.tags),
+    f.notes,
     el("div", { class: "meta" }, field("clip"), " on ", field("char"), " · ", field("envs"), " · seed ", field("seed")),
     el("div", { class: "meta" }, f.progress, " ", field("samples")),
     el("div", { class: "meta" }, field("elapsed"), " · ", field("rate"), " · test return ", field("test-return"), " · falls ", field("test-falls"), f.resumes),
@@ -244,13 +257,17 @@ function buildRunNode(run) {
       act("Evaluate", (r) => startEval({ run_id: r.id })),
       act("Delete", (r) => deleteRun(r)),
       act("Compare sweep", (r) => compareSweep(r.sweep_id)),
-      act("Stop sweep", (r) => stopSweep(r))));
+      act("Stop sweep", (r) => stopSweep(r)),
+      act("Tags", () => openLabels(entry))),
+    f.editor);
+  f.Tags.title = "tags (the list's filter finds them) and notes of this run";
   f["test-falls"].title = "share of the last test's episodes that ended in a fall (a clip that does not loop ends episodes early without one)";
   return entry;
 }
 
 // What the run's folder says (run.summary): what it trains, how far, at what rate, with which seed, how it ended.
-function updateRunNode({ run, node, fields: f }) {
+function updateRunNode(entry) {
+  const { run, node, fields: f } = entry;
   const s = run.summary || {};
   const active = ["running", "stopping", "queued"].includes(run.status);
   const ended = ENDED.includes(run.status);
@@ -274,6 +291,7 @@ function updateRunNode({ run, node, fields: f }) {
   set(f["test-return"], s.test_return !== null && s.test_return !== undefined ? s.test_return.toFixed(2) : "–");
   set(f["test-falls"], s.test_fail_frac !== null && s.test_fail_frac !== undefined ? `${Math.round(100 * s.test_fail_frac)}%` : "–");
   set(f.resumes, s.resumes ? ` · resumed ${s.resumes}×` : "");
+  updateLabels(entry);
   set(f.reason, run.reason || "");
   f.reason.hidden = !run.reason;
   f.Stop.disabled = !(active && run.status !== "stopping");
@@ -342,6 +360,7 @@ async function deleteRun(run) {
   } catch (e) { showRunError(run, e); }
   if (selectedRun === run.id) {
     selectedRun = null;
+    setCurvesRun(null);
     $("curves-title").textContent = "Curves";
     $("console").textContent = "";
     clearCurves();
@@ -355,6 +374,7 @@ export function selectRun(id) {
   showCompare(false);
   if (id === selectedRun) return;
   selectedRun = id;
+  setCurvesRun(id);
   divergenceAsked = null;
   clearCurves();
   $("console").textContent = "";

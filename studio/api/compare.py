@@ -11,11 +11,14 @@ from typing import Any
 
 import yaml
 from fastapi import APIRouter, Query, Request
+from fastapi.responses import StreamingResponse
 
 from mimickit.learning.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, EndState, RunFolder
 from studio.api import studio_of
 from studio.api.bodies import OneLineErrors
+from studio.api.runs import csv_response
 from studio.runs.manager import RunError
+from studio.runs.metrics import MetricsCsv
 
 router = APIRouter(prefix="/compare", tags=["compare"], route_class=OneLineErrors)
 MAX_RUNS = 12
@@ -39,6 +42,16 @@ def compare(request: Request, runs: str = Query(description="run ids, comma-sepa
         if any(v != values[0] for v in values[1:]):
             diff.append({"key": key, "values": values})
     return {"runs": [{k: v for k, v in e.items() if k != "settings"} for e in entries], "diff": diff}
+
+
+@router.get("/metrics.csv", response_class=StreamingResponse)
+def compare_csv(request: Request, runs: str = Query(description="run ids, comma-separated")) -> StreamingResponse:
+    """The runs' `metrics.jsonl` files as one CSV (streamed): a `run` column (the id), then the union of
+    their keys, each run's rows in turn, in the order the ids are given."""
+    ids = _parse_ids(runs)
+    studio = studio_of(request)
+    folders = [(str(i), RunFolder(studio.runs.get(i).out_dir).metrics_file) for i in ids]
+    return csv_response(MetricsCsv(folders), f"runs-{'-'.join(map(str, ids))}-metrics.csv")
 
 
 def _parse_ids(text: str) -> list[int]:

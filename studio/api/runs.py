@@ -1,5 +1,6 @@
 """Run endpoints: launch, list, inspect, stop, resume (with a new budget), again with a run's seed,
-delete, the launch form's fields, and a run's metrics rows (live, they are `GET /api/stream`'s).
+delete, tags and notes, the launch form's fields, and a run's metrics rows (live, they are
+`GET /api/stream`'s) or its whole metrics.jsonl as CSV.
 
 Paths take the CLI's forms: `args/x.txt` (the project's args folder, then each data folder's and the
 runs folder's), `data/...` (each data folder in turn), or absolute inside the allowed folders.
@@ -9,19 +10,21 @@ from __future__ import annotations
 
 import json
 import time
+import unicodedata
 from pathlib import Path, PurePosixPath
 from typing import Annotated, Any
 
 import anyio.to_thread
 from fastapi import APIRouter, Query, Response
-from pydantic import Field, create_model
+from fastapi.responses import StreamingResponse
+from pydantic import Field, create_model, field_validator
 
 from mimickit.learning.run_folder import RunFolder
 from studio.api import StudioDep
 from studio.api.bodies import OneLineErrors, StrictBody
 from studio.runs.launch_fields import BY_NAME, LAUNCH_FIELDS
 from studio.runs.manager import RunError
-from studio.runs.metrics import read_rows
+from studio.runs.metrics import MAX_CSV_COLUMNS, MetricsCsv, read_rows
 from studio.security import PathError, confine, shown_path
 from studio.settings import Settings
 
@@ -29,6 +32,7 @@ router = APIRouter(prefix="/runs", tags=["runs"], route_class=OneLineErrors)
 MOTION_SUFFIXES = (".pkl", ".yaml", ".yml")
 CONFIG_SUFFIXES = (".yaml", ".yml")
 MAX_STOP_IDS = 10_000
+MAX_TAGS, MAX_TAG_CHARS, MAX_NOTES_CHARS = 16, 32, 2000
 
 
 def field_spec(name: str, description: str | None = None) -> tuple[Any, Any]:
@@ -63,6 +67,41 @@ class StopRuns(StrictBody):
         None, max_length=MAX_STOP_IDS, description="the runs to stop"
     )
     sweep_id: int | None = Field(None, ge=0, strict=True, description="stop every run of this sweep")
+
+
+class RunLabels(StrictBody):
+    tags: list[Annotated[str, Field(strict=True)]] | None = Field(
+        None, max_length=MAX_TAGS, description=f"the run's tags (replacing its tags): up to {MAX_TAGS} labels"
+    )
+    notes: str | None = Field(None, strict=True, max_length=MAX_NOTES_CHARS, description="free text about the run")
+
+    @field_validator("tags")
+    @classmethod
+    def _tags(cls, tags: list[str] | None) -> list[str] | None:
+        """Short labels the run list shows as chips and the page edits comma-separated: no commas, no
+        control characters, no padding, each once."""
+        for tag in tags or []:
+            shown = tag if len(tag) <= 40 else tag[:40] + "..."
+            if not 1 <= len(tag) <= MAX_TAG_CHARS or tag != tag.strip():
+                raise ValueError(f"{shown!r}: a tag is 1 to {MAX_TAG_CHARS} characters, no space at either end")
+            if "," in tag or _has_control(tag):
+                raise ValueError(f"{shown!r}: a tag has no commas and no control characters")
+        if tags is not None and len(set(tags)) != len(tags):
+            raise ValueError("each tag once")
+        return tags
+
+    @field_validator("notes")
+    @classmethod
+    def _notes(cls, notes: str | None) -> str | None:
+        if notes is not None and _has_control(notes.replace("\n", "").replace("\t", "")):
+            raise ValueError("notes have no control characters (but line breaks and tabs)")
+        return notes
+
+
+def _has_control(text: str) -> bool:
+    """Control, format (bidirectional overrides) and unassigned characters: what could hide or reorder
+    the text a list shows."""
+    return any(unicodedata.category(c) in ("Cc", "Cf", "Cn", "Cs") for c in text)
 
 
 def resolve_arg_file(path: str, settings: Settings) -> Path:
@@ -157,6 +196,15 @@ def get_run(run_id: int, studio: StudioDep) -> dict[str, Any]:
     return studio.run_list.row(studio.runs.get(run_id))
 
 
+@router.patch("/{run_id}")
+def set_labels(run_id: int, body: RunLabels, studio: StudioDep) -> dict[str, Any]:
+    """Set the run's `tags` (the list replaces the run's) and/or `notes`, kept in the registry; the run
+    list (and the stream's `runs` events) carry them."""
+    if body.tags is None and body.notes is None:
+        raise RunError("give `tags` (a list of strings), `notes` (a string) or both", 422)
+    return studio.run_list.row(studio.runs.label(run_id, tags=body.tags, notes=body.notes))
+
+
 @router.post("/stop")
 def stop_many(body: StopRuns, studio: StudioDep) -> dict[str, list[int]]:
     """Stop many runs in one request: `ids`, or every run of `sweep_id`. Queued ones never start;
@@ -225,3 +273,20 @@ def metrics(
         raise RunError(f"this per-run event stream is retired: follow the rows with GET /api/stream?run={run_id}", 410)
     run = studio.runs.get(run_id)
     return read_rows(RunFolder(run.out_dir).metrics_file, start)
+
+
+@router.get("/{run_id}/metrics.csv", response_class=StreamingResponse)
+def metrics_csv(run_id: int, studio: StudioDep) -> StreamingResponse:
+    """The run's whole `metrics.jsonl` as CSV (streamed): one column per key any row has, in the order
+    they first appear, one line per row (a resume's marker row too); a value a row lacks is empty, a
+    non-finite one `nan`/`inf`/`-inf`."""
+    run = studio.runs.get(run_id)
+    return csv_response(MetricsCsv([(None, RunFolder(run.out_dir).metrics_file)]), f"run-{run_id}-metrics.csv")
+
+
+def csv_response(table: MetricsCsv, filename: str) -> StreamingResponse:
+    """`table` as a download named `filename`, or a RunError 413 when its rows have too many keys."""
+    if len(table.columns) > MAX_CSV_COLUMNS:
+        raise RunError(f"the metrics have {len(table.columns)} columns, more than {MAX_CSV_COLUMNS}", 413)
+    headers = {"Content-Disposition": f'attachment; filename="{filename}"'}
+    return StreamingResponse(table.chunks(), media_type="text/csv; charset=utf-8", headers=headers)

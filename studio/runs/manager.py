@@ -290,6 +290,14 @@ class RunManager:
         if out_dir and out_dir != runs_dir and out_dir.is_relative_to(runs_dir) and out_dir.is_dir():
             shutil.rmtree(out_dir, ignore_errors=True)
 
+    def label(self, run_id: int, tags: list[str] | None = None, notes: str | None = None) -> Run:
+        """Set the user's tags and notes of a run, whatever its status (only those given): under the
+        manager's lock, so that a delete cannot pass between the check and the write."""
+        given = {k: v for k, v in (("tags", tags), ("notes", notes)) if v is not None}
+        with self._lock:
+            self.get(run_id)
+            return self.registry.update(run_id, **given)
+
     def logs(self, run_id: int) -> str:
         """The output of the run's latest process: the executor's (Ray keeps a job's log while it
         runs) or, once ended or with the local executor, the run folder's console.log."""

@@ -10,15 +10,20 @@ so the page can mark where a curve went non-finite instead of losing the point.
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from mimickit.learning.run_folder import METRICS_FILE
 
-__all__ = ["METRICS_FILE", "RowReader", "last_rows", "read_rows"]
+__all__ = ["METRICS_FILE", "MetricsCsv", "RowReader", "last_rows", "read_rows"]
 TAIL_BYTES = 256 * 1024
+MAX_CSV_COLUMNS = 2000  # a run writes some dozens; more is not a metrics file a spreadsheet should get
+CSV_CHUNK_ROWS = 500  # rows per chunk of the streamed answer
 
 
 def read_rows(path: Path, start: int = 0) -> list[dict[str, Any]]:
@@ -94,3 +99,73 @@ class RowReader:
                 out.append((self._index, row))
                 self._index += 1
         return out
+
+
+class MetricsCsv:
+    """Runs' `metrics.jsonl` files as one CSV: the columns are the union of the rows' keys in the order
+    they first appear (after a `run` column when `label` names each file's run), a row per complete line
+    of each file in turn, a key a row lacks left empty. The columns are read first (one pass), so the
+    file is read twice; each file is read only up to the size it had then, so a row the trainer
+    appends meanwhile (with perhaps a new key) is not half in the answer."""
+
+    def __init__(self, files: list[tuple[str | None, Path]]) -> None:
+        self.files = files
+        self.sizes: list[int] = []
+        keys: dict[str, None] = {}
+        for _, path in files:
+            size = path.stat().st_size if path.is_file() else 0
+            self.sizes.append(size)
+            for row in _rows_upto(path, size):
+                keys.update(dict.fromkeys(row))
+        labelled = any(label is not None for label, _ in files)
+        self.columns = (["run"] if labelled else []) + list(keys)
+
+    def chunks(self) -> Iterator[str]:
+        """The CSV text, some hundred rows a chunk (blocking reads: a streamed answer's worker thread)."""
+        buf = io.StringIO()
+        out = csv.writer(buf, lineterminator="\n")
+        out.writerow(self.columns)
+        labelled = self.columns[:1] == ["run"]
+        keys = self.columns[1:] if labelled else self.columns
+        n = 0
+        for (label, path), size in zip(self.files, self.sizes, strict=True):
+            for row in _rows_upto(path, size):
+                cells = [csv_cell(row.get(k)) for k in keys]
+                out.writerow([label, *cells] if labelled else cells)
+                n += 1
+                if n % CSV_CHUNK_ROWS == 0:
+                    yield buf.getvalue()
+                    buf.seek(0)
+                    buf.truncate()
+        yield buf.getvalue()
+
+
+def _rows_upto(path: Path, size: int) -> Iterator[dict[str, Any]]:
+    """The file's complete rows in its first `size` bytes, as read raw (NaN stays a float nan: the CSV
+    writes it as `nan`, not as an empty cell); a corrupt line is skipped as `read_rows` skips it."""
+    if size == 0:
+        return
+    with path.open("rb") as f:
+        left = size
+        for line in f:
+            left -= len(line)
+            if left < 0 or not line.endswith(b"\n"):
+                return
+            try:
+                row = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(row, dict):
+                yield row
+
+
+def csv_cell(v: Any) -> str:
+    """One value as a CSV cell: numbers as Python writes them (`repr`: every digit of a float, `nan`,
+    `inf`), booleans as JSON writes them, a missing value empty, a nested value as its JSON."""
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float, str)):
+        return repr(v) if isinstance(v, float) else str(v)
+    return json.dumps(v, separators=(",", ":"))

@@ -15,7 +15,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from enum import Enum
 from pathlib import Path
 from typing import Any
@@ -67,7 +67,9 @@ CREATE TABLE IF NOT EXISTS runs (
     reason TEXT,                   -- the line that says why it ended (diverged/failed), from the run folder
     executor TEXT NOT NULL DEFAULT 'local',  -- what runs its processes: local (subprocesses) or ray (Ray jobs)
     job_id TEXT,                   -- the executor's id of the latest process: a pid, a Ray submission id
-    sweep_id INTEGER               -- the sweep it belongs to (one group in the run list), or NULL
+    sweep_id INTEGER,              -- the sweep it belongs to (one group in the run list), or NULL
+    tags TEXT NOT NULL DEFAULT '[]',  -- JSON list of the user's short labels (the run list filters by them)
+    notes TEXT NOT NULL DEFAULT ''    -- the user's free text about the run
 );
 CREATE TABLE IF NOT EXISTS sweeps (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -82,6 +84,8 @@ _ADDED_COLUMNS = [
     ("executor", "TEXT NOT NULL DEFAULT 'local'"),
     ("job_id", "TEXT"),
     ("sweep_id", "INTEGER"),
+    ("tags", "TEXT NOT NULL DEFAULT '[]'"),
+    ("notes", "TEXT NOT NULL DEFAULT ''"),
 ]
 
 
@@ -103,6 +107,8 @@ class Run:
     executor: str = "local"
     job_id: str | None = None
     sweep_id: int | None = None
+    tags: list[str] = field(default_factory=list)
+    notes: str = ""
 
     def to_json(self) -> dict[str, Any]:
         """The fields as JSON values; `config` and `command` are this run's own (not copied: a run list
@@ -206,12 +212,12 @@ class Registry:
         return self.get(run_id)
 
     def update(self, run_id: int, **fields: Any) -> Run:
-        """Set columns of one run; `config`/`command` are stored as JSON, `status` as its value."""
+        """Set columns of one run; `config`/`command`/`tags` are stored as JSON, `status` as its value."""
         if not fields:
             return self.get(run_id)
         cols, vals = [], []
         for key, value in fields.items():
-            if key in ("config", "command") and value is not None:
+            if key in ("config", "command", "tags") and value is not None:
                 value = json.dumps(value)
             elif isinstance(value, RunStatus):
                 value = value.value
@@ -330,6 +336,7 @@ def _row_to_run(row: sqlite3.Row) -> Run:
     d["config"] = json.loads(d["config"])
     d["command"] = json.loads(d["command"]) if d["command"] else None
     d["status"] = RunStatus(d["status"])
+    d["tags"] = json.loads(d["tags"])
     return Run(**d)
 
 
