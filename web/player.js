@@ -4,6 +4,7 @@
 import { $, api, el, withToken } from "./api.js";
 import { CurvePlot } from "./plots.js";
 import { BodyErrorChart } from "./body_error.js";
+import { pushView } from "./push.js";
 
 let scrubbing = false;
 let pendingCommands = 0;
@@ -155,6 +156,7 @@ export const rolloutView = {
     this.plot.setTitle(b ? "A: reward and its terms, last 10 s" : "rollout: reward and its terms, last 10 s");
     this.bodyError.apply(r.body_error);  // the frame shown's (live or history)
     if (b) $("rollout-label-b").textContent = sideLabel(b, "B");
+    pushView.show(r);
     const cursor = r.live ? null : s.time;
     for (const p of b ? [this.plot, this.plotB] : [this.plot]) {
       if (cursor !== p.cursor) { p.cursor = cursor; p.draw(); }
@@ -171,6 +173,8 @@ export const rolloutView = {
       if (row.step <= this.lastStep) continue;
       add(this.plot, row.time, row);
       if (row.b) add(this.plotB, row.time, row.b);
+      if (row.push) this.plot.addMarker(row.time, "push", "push");  // where a push began
+      if (row.fall_after_push_s !== null) this.plot.addMarker(row.time, "fell", "fall");  // a fall after one
       this.lastStep = row.step;
     }
     this.plot.draw();
@@ -180,6 +184,7 @@ export const rolloutView = {
 
 export function initPlayer() {
   rolloutView.init();
+  pushView.init(applyState);
   $("rollout-reset").addEventListener("click", () => playerCommand("rollout/reset"));
   $("rollout-close").addEventListener("click", () => playerCommand("rollout/close"));
   $("play").addEventListener("click", () => playerCommand("toggle"));

@@ -6,7 +6,7 @@ import uPlot from "./vendor/uPlot.esm.js";
 
 export const PALETTE = ["#f0a830", "#5a9ae0", "#3cc878", "#e0564f", "#b77fe0", "#40c8c8", "#e07fb0", "#a0a060"];
 const AXIS = { stroke: "#8a91a0", grid: { stroke: "#2a2e37", width: 1 }, ticks: { stroke: "#2e323c", width: 1 }, font: "11px system-ui, sans-serif", labelFont: "11px system-ui, sans-serif" };
-const MARKER_COLORS = { resume: "#8fa8ff", diverged: "#ff4d4d" };
+const MARKER_COLORS = { resume: "#8fa8ff", diverged: "#ff4d4d", push: "#00c8ff", fall: "#ff4d4d" };
 
 export class CurvePlot {
   // options: title, xLabel, yLabel, height, window (show the last `window` x units, or those around the

@@ -189,6 +189,22 @@ class MujocoView:
     objects: tuple[ViewObject, ...]
 
 
+@dataclass
+class BodyForce:
+    """An external wrench on one body of one env, held for whole control steps (`Engine.apply_body_force`)."""
+
+    env_id: int
+    obj_id: int
+    body_id: int
+    """The body's index in the object's kinematic DFS order (0: the root)."""
+    force: np.ndarray
+    """[3] N, world frame, at the body's centre of mass."""
+    torque: np.ndarray
+    """[3] N·m, world frame."""
+    steps_left: int
+    """Control steps it still acts for (the next `step` is one of them)."""
+
+
 def ball_cone_angle(low: np.ndarray, high: np.ndarray) -> float | None:
     """The cone limit (rad) of a 3-D joint with per-axis bounds low/high [3]: the largest |bound|, so that
     every single-axis rotation the bounds allow stays reachable; None when that is π or more (an exp-map
@@ -227,6 +243,7 @@ class Engine(abc.ABC):
         self._kin_cache: dict[str, KinCharModel] = {}  # per asset file
         self._sim_time = 0.0
         self._start_poses: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per env, per obj: (pos[3], xyzw[4])
+        self._body_forces: dict[tuple[int, int, int], BodyForce] = {}  # (env, obj, body) -> its push
 
     @property
     def config(self) -> EngineConfig:
@@ -356,6 +373,82 @@ class Engine(abc.ABC):
         neither reads nor writes this engine, which may then overlap the physics (the MuJoCo engine's
         worker threads step the envs meanwhile; Newton's kernels are queued before it). An engine that
         cannot overlap runs the block, then the step."""
+
+    # ------------------------------------------------------------------ external forces (a push)
+    def apply_body_force(
+        self,
+        env_id: int,
+        obj_id: int,
+        body_id: int,
+        force: np.ndarray | list[float],
+        torque: np.ndarray | list[float] | None = None,
+        duration_s: float = 0.2,
+    ) -> int:
+        """Push body `body_id` (kinematic DFS order) of object `obj_id` in env `env_id` with `force` [3] N
+        (and `torque` [3] N·m), world frame at its centre of mass, over the next control steps: the
+        duration rounded to whole control steps, at least one (a step's substeps run in one call).
+        Returns the steps. A new push on the same body replaces the old one; setting the object's root
+        position (a reset places it anew) ends its pushes. MimicKitError for what cannot be pushed."""
+        self._check_body_force(env_id, obj_id, body_id)
+        f = np.asarray(force, dtype=np.float64).reshape(-1)
+        t = np.zeros(3) if torque is None else np.asarray(torque, dtype=np.float64).reshape(-1)
+        if f.shape != (3,) or t.shape != (3,) or not (np.isfinite(f).all() and np.isfinite(t).all()):
+            raise MimicKitError("apply_body_force: force and torque must be 3 finite numbers each")
+        if not (math.isfinite(duration_s) and duration_s > 0):
+            raise MimicKitError(f"apply_body_force: duration_s must be a positive number of seconds, not {duration_s}")
+        steps = max(1, round(duration_s / self.get_timestep()))
+        self._body_forces[(int(env_id), int(obj_id), int(body_id))] = BodyForce(
+            int(env_id), int(obj_id), int(body_id), f, t, steps
+        )
+        self._body_forces_changed()
+        return steps
+
+    def get_body_forces(self, env_id: int | None = None) -> list[BodyForce]:
+        """The pushes that act on the next control step (of env `env_id`, or all), copies."""
+        return [
+            BodyForce(f.env_id, f.obj_id, f.body_id, f.force.copy(), f.torque.copy(), f.steps_left)
+            for f in self._body_forces.values()
+            if env_id is None or f.env_id == env_id
+        ]
+
+    def _check_body_force(self, env_id: int, obj_id: int, body_id: int) -> None:
+        if not self._sim_initialized():
+            raise MimicKitError("apply_body_force: the simulation is not initialized yet")
+        if not 0 <= int(env_id) < self._num_envs:
+            raise MimicKitError(f"apply_body_force: env {env_id} is out of range (the engine has {self._num_envs})")
+        if not 0 <= int(obj_id) < len(self._layouts):
+            raise MimicKitError(f"apply_body_force: no object {obj_id} (each env has {len(self._layouts)})")
+        if self._env_objs[int(env_id)][int(obj_id)].is_visual:
+            raise MimicKitError(f"apply_body_force: object {obj_id} is visual only; nothing pushes it")
+        bodies = self.get_obj_num_bodies(int(obj_id))
+        if not 0 <= int(body_id) < bodies:
+            raise MimicKitError(f"apply_body_force: object {obj_id} has {bodies} bodies, not body {body_id}")
+
+    def _count_body_force_step(self) -> None:
+        """After a control step: each push has one step fewer; those done are dropped."""
+        if not self._body_forces:
+            return
+        for key, f in list(self._body_forces.items()):
+            f.steps_left -= 1
+            if f.steps_left <= 0:
+                del self._body_forces[key]
+        self._body_forces_changed()
+
+    def _end_body_forces(self, env_ids: np.ndarray | torch.Tensor, obj_id: int) -> None:
+        """Object `obj_id` placed anew in envs `env_ids` (a reset): its pushes end there."""
+        if not self._body_forces:
+            return
+        ids = {int(i) for i in np.asarray(env_ids.cpu() if isinstance(env_ids, torch.Tensor) else env_ids).ravel()}
+        ended = [k for k in self._body_forces if k[1] == obj_id and k[0] in ids]
+        for k in ended:
+            del self._body_forces[k]
+        if ended:
+            self._body_forces_changed()
+
+    def _body_forces_changed(self) -> None:
+        """The set of pushes changed: an engine that keeps them in its own arrays between steps (MuJoCo's
+        `xfrc_applied`) rewrites them; one that writes them before each substep has nothing to do."""
+        return None
 
     # ------------------------------------------------------------------ timing / misc
     def get_timestep(self) -> float:

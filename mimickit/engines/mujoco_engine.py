@@ -93,6 +93,7 @@ class MujocoEngine(Engine):
         self._pool: ThreadPoolExecutor | None = None
         self._chunks: list[slice] = []  # env rows per worker thread, set by initialize_sim
         self._view_objects: tuple[ViewObject, ...] | None = None  # mujoco_view's, built on its first call
+        self._pushed_envs: set[int] = set()  # envs whose xfrc_applied holds a push (see _body_forces_changed)
 
     def get_name(self) -> str:
         return "mujoco"
@@ -216,6 +217,7 @@ class MujocoEngine(Engine):
         self._gather(slice(None))
         self._refresh(slice(None))
         self._sim_time += self.get_timestep()
+        self._count_body_force_step()
 
     @contextmanager
     def _workers_running(self, nstep: int, first: bool, last: bool) -> Iterator[None]:
@@ -274,6 +276,19 @@ class MujocoEngine(Engine):
                 finish(m, d)
             if last:
                 _update_kinematics(m, d)
+
+    def _body_forces_changed(self) -> None:
+        """Rewrite the pushes into `xfrc_applied`, which MuJoCo keeps and applies on every substep until it
+        is changed: zeroed in the envs that held one, then each push added at its body."""
+        for e in self._pushed_envs:
+            self.mj_datas[e].xfrc_applied[:] = 0.0
+        self._pushed_envs = set()
+        for f in self._body_forces.values():
+            b = self._layouts[f.obj_id].body_ids[f.body_id]
+            xfrc = self.mj_datas[f.env_id].xfrc_applied
+            xfrc[b, :3] += f.force
+            xfrc[b, 3:] += f.torque
+            self._pushed_envs.add(f.env_id)
 
     # ------------------------------------------------------------------ state sync
     def _gather(self, rows: slice | np.ndarray) -> None:
@@ -359,6 +374,7 @@ class MujocoEngine(Engine):
     def set_root_pos(self, env_ids: EnvIds, obj_id: int, root_pos: torch.Tensor | float) -> None:
         ids, lay = self._env_ids(env_ids), self._layouts[obj_id]
         pos = _rows(root_pos, len(ids), 3)
+        self._end_body_forces(ids, obj_id)  # placed anew: a push does not carry over a reset
         if lay.root_qpos >= 0:
             self._host["qpos"][ids, lay.root_qpos : lay.root_qpos + 3] = pos
         else:
@@ -442,6 +458,7 @@ class MujocoEngine(Engine):
             return
         n, qpos = len(ids), self._host["qpos"]
         rot = _rows(root_rot, n, 4)
+        self._end_body_forces(ids, obj_id)  # placed anew: a push does not carry over a reset
         qpos[ids, lay.root_qpos : lay.root_qpos + 3] = _rows(root_pos, n, 3)
         qpos[ids, lay.root_qpos + 3 : lay.root_qpos + 7] = rot[:, [3, 0, 1, 2]] / np.linalg.norm(
             rot, axis=-1, keepdims=True

@@ -371,6 +371,7 @@ class NewtonEngine(Engine):
         s, c = self.state, self.control
         self._jq = wp.to_torch(s.joint_q).view(n, -1)
         self._jqd = wp.to_torch(s.joint_qd).view(n, -1)
+        self._body_f = wp.to_torch(s.body_f).view(-1, 6)  # every world's bodies, one row each
         self._bq = wp.to_torch(s.body_q).view(n, self._bodies_per_world, 7)
         self._bqd = wp.to_torch(s.body_qd).view(n, self._bodies_per_world, 6)
         self._target_q = wp.to_torch(c.joint_target_q).view(n, -1)
@@ -411,8 +412,11 @@ class NewtonEngine(Engine):
         self._sync()
         dt = self.get_sim_timestep()
         nsub = self._config.substeps
+        pushes = self._body_force_rows()
         for i in range(nsub):
             self.state.clear_forces()
+            if pushes is not None:  # body_f is cleared above: the pushes go in again before each substep
+                self._body_f[pushes[0]] = pushes[1]
             if self._config.control_mode == ControlMode.pd_explicit:
                 self._apply_explicit_pd()
             elif self._config.control_mode == ControlMode.torque:
@@ -425,6 +429,22 @@ class NewtonEngine(Engine):
         yield  # on a GPU the kernels above are queued, not yet run: the block overlaps them
         self._refresh(contacts=True)
         self._sim_time += self.get_timestep()
+        self._count_body_force_step()
+
+    def _body_force_rows(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The pushes of this control step as (body_f rows [P], wrenches [P, 6]: force then torque, world
+        frame at the centre of mass, as Newton's body_f takes them), or None without any."""
+        if not self._body_forces:
+            return None
+        per_world = self._bodies_per_world
+        rows, wrenches = [], []
+        for f in self._body_forces.values():
+            rows.append(f.env_id * per_world + self._layouts[f.obj_id].bodies.start + f.body_id)
+            wrenches.append(np.concatenate([f.force, f.torque]))
+        return (
+            torch.tensor(rows, dtype=torch.long, device=self._device),
+            torch.tensor(np.stack(wrenches), dtype=torch.float32, device=self._device),
+        )
 
     def _apply_explicit_pd(self) -> None:
         """τ = kp (q* − q) − kd q̇ on the [N, D] DoF vectors of the current state (ball joints: exp-map and
@@ -555,6 +575,7 @@ class NewtonEngine(Engine):
         self._dirty = True
 
     def set_root_pos(self, env_ids: EnvIds, obj_id: int, root_pos: torch.Tensor | float) -> None:
+        self._end_body_forces(self._ids(env_ids), obj_id)  # placed anew: a push does not carry over a reset
         self._set_root(env_ids, obj_id, root_pos, 3, 0, in_qd=False)
 
     def set_root_rot(self, env_ids: EnvIds, obj_id: int, root_rot: torch.Tensor | float) -> None:

@@ -68,6 +68,16 @@ class Seek(StrictBody):
     time: float | None = Field(None, description="seconds; used when `frame` is absent")
 
 
+class Reset(StrictBody):
+    same_start: bool = Field(False, description="start from the clip state the last episode started from")
+
+
+class Push(StrictBody):
+    body: str | None = Field(None, max_length=200, description="a body of the character; default: picked, else root")
+    force: list[float] = Field(min_length=3, max_length=3, description="[x, y, z] newtons, world frame, z up")
+    duration_s: float = Field(0.2, description="seconds, rounded to whole control steps")
+
+
 class Configure(StrictBody):
     speed: float | None = None
     loop: bool | None = None
@@ -190,10 +200,21 @@ def rollout_history(
 
 
 @router.post("/rollout/reset")
-def rollout_reset(studio: StudioDep) -> dict[str, Any]:
-    """Start a new episode of the loaded rollout now."""
+def rollout_reset(studio: StudioDep, body: Reset | None = None) -> dict[str, Any]:
+    """Start a new episode of the loaded rollout now (`same_start`: from the clip state the last one
+    started from)."""
     rp = _rollout(studio)
-    rp.reset()
+    rp.reset((body or Reset()).same_start)
+    return rp.snapshot()
+
+
+@router.post("/rollout/push")
+def rollout_push(body: Push, studio: StudioDep) -> dict[str, Any]:
+    """Push a body of the rollout's character from the next simulated step; the state, whose
+    `rollout.push.last` is the push given. 400 in one line for an unknown body, a force over the bound or
+    not finite, a duration out of bounds."""
+    rp = _rollout(studio)
+    rp.push(body.body, body.force, body.duration_s)
     return rp.snapshot()
 
 

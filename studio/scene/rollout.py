@@ -34,6 +34,7 @@ import mujoco
 import numpy as np
 import torch
 
+from mimickit.envs.base_env import DoneFlags
 from mimickit.envs.viewable import TracksReference
 from mimickit.learning.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, RunFolder
 from mimickit.runner.inputs import RunInputs
@@ -44,7 +45,14 @@ from mimickit.util.warn import collect_warnings
 from studio.runs.checkpoints import MOTION_FILE, configs_beside
 from studio.scene.playable import Playable, command
 from studio.scene.thread import SceneThread
-from studio.scene.view import BODY_ERROR_SCALE_M, BODY_ERROR_STOPS, SUPPORT_WINDOW_S, StudioScene, error_colour
+from studio.scene.view import (
+    BODY_ERROR_SCALE_M,
+    BODY_ERROR_STOPS,
+    PAIR_LANE,
+    SUPPORT_WINDOW_S,
+    StudioScene,
+    error_colour,
+)
 
 HISTORY_S = 60.0  # seconds of recorded steps kept for scrubbing back
 RATE_WINDOW = 60  # frames the real-time factor is measured over (2 s at 30 Hz)
@@ -52,6 +60,11 @@ RELOAD_POLL_S = 1.0  # how often the checkpoint's mtime is checked
 MAX_STEP_FRAMES = 300  # one `step` command simulates at most this many steps
 MIN_SPEED, MAX_SPEED = 0.05, 4.0
 PUBLISHED_ROWS = 600  # history rows published with each state (`Playable.feed`): 20 s at 30 Hz
+# A push (`Rollout.push`): a fixed bound, not one scaled by the character's mass, so that one number means
+# the same on every character; 5000 N for 0.1 s is an impulse that throws the 45 kg humanoid, and a
+# longer or stronger push only flings it out of view.
+MAX_PUSH_N = 5000.0
+MAX_PUSH_S = 2.0  # the longest push, seconds (rounded to whole control steps by the engine)
 
 
 @dataclass
@@ -177,6 +190,22 @@ class Frame:
     low_z: float | None = None  # lowest body origin of the followed figure (see RolloutPlayer._height)
     body_error: np.ndarray | None = None  # [J] metres, each body's tracking error (Rollout.body_names)
     waiting: bool = False  # an ended episode's last pose, held while an A/B partner still runs
+    push: tuple[PushMark, ...] = ()  # the pushes that acted on the character during this step
+    fall_after_push_s: float | None = None  # a fall (done 1) ending an episode, seconds after its last push
+
+
+@dataclass(frozen=True, slots=True)
+class PushMark:
+    """One push acting during a recorded step (`Rollout.push`): what the history, the plot and the arrow show."""
+
+    body: str  # the character's body name
+    view_body: int  # its MuJoCo body id in `Rollout.model` (where the arrow points)
+    force: tuple[float, float, float]  # N, world frame
+    duration_s: float  # the whole push, in whole control steps
+    start: bool  # the push's first step
+
+    def to_json(self) -> dict[str, Any]:
+        return {"body": self.body, "force": list(self.force), "duration_s": self.duration_s}
 
 
 @dataclass
@@ -185,9 +214,16 @@ class EpisodeSummary:
     steps: int
     ret: float
     done: int
+    fall_after_push_s: float | None = None  # a fall (done 1) after a push in the episode: seconds since it
 
     def to_json(self) -> dict[str, Any]:
-        return {"episode": self.episode, "steps": self.steps, "return": self.ret, "done": self.done}
+        return {
+            "episode": self.episode,
+            "steps": self.steps,
+            "return": self.ret,
+            "done": self.done,
+            "fall_after_push_s": self.fall_after_push_s,
+        }
 
 
 class Rollout:
@@ -229,20 +265,32 @@ class Rollout:
         self.episode = -1
         self.episodes: deque[EpisodeSummary] = deque(maxlen=100)
         self.ended = 0  # the DoneFlags of an episode that ended without a reset (`step(auto_reset=False)`)
+        self.push_bodies: list[str] = engine.get_obj_body_names(self.env.get_char_id())  # what `push` takes
+        self._push_steps: dict[int, int] = {}  # body id -> control steps of the push given last (its start)
+        self._last_push_step: int | None = None  # `steps` when the episode's last push began
+        self._clip_start: tuple[torch.Tensor, torch.Tensor] | None = None  # (clip ids, times) of the episode's start
         self.reset()
 
     @property
     def control_freq(self) -> float:
         return 1.0 / self.dt
 
-    def reset(self) -> None:
-        """A new episode (the env's own reset: reference-state init from the clip)."""
+    def reset(self, same_start: bool = False) -> None:
+        """A new episode (the env's own reset: reference-state init from the clip); `same_start`: from the
+        clip state the last episode started from (an env tracking clips), to see one start with and
+        without a push."""
+        tracking = self.env if isinstance(self.env, TracksReference) else None
+        if same_start and tracking is not None and self._clip_start is not None:
+            tracking.start_next_resets_at(*self._clip_start)
         with torch.no_grad():
             self._obs, _ = self.env.reset()
+        if tracking is not None:  # right after the reset the clip time is the start's
+            self._clip_start = (tracking.get_motion_ids(), tracking.get_motion_time().clone())
         self.episode += 1
         self.episode_step = 0
         self.episode_return = 0.0
         self.ended = 0
+        self._last_push_step = None  # the env's reset placed the character anew: its pushes ended
         self._record(None, None, 0)
 
     def restart(self) -> None:
@@ -256,6 +304,7 @@ class Rollout:
     def step(self, auto_reset: bool = True) -> Frame:
         """One control step of the deterministic policy; an episode that ends is reset at once, or with
         `auto_reset` False left ended (`ended`: its done flag) until `reset`."""
+        pushes = self._acting_pushes()  # read before the step that applies them (it counts them down)
         with torch.no_grad():
             action = self.agent.compute_action(self._obs, deterministic=True)
             obs, reward, done, info = self.env.step(action)
@@ -265,9 +314,10 @@ class Rollout:
         self.steps += 1
         self.episode_step += 1
         self.episode_return += r
-        frame = self._record(r, terms, d)
+        frame = self._record(r, terms, d, pushes)
         if d:
-            self.episodes.append(EpisodeSummary(self.episode, self.episode_step, self.episode_return, d))
+            summary = EpisodeSummary(self.episode, self.episode_step, self.episode_return, d, frame.fall_after_push_s)
+            self.episodes.append(summary)
             if auto_reset:
                 self.reset()
             else:
@@ -276,11 +326,49 @@ class Rollout:
             self._obs = obs
         return frame
 
+    def check_push(self, body: str, force: list[float] | tuple[float, ...], duration_s: float) -> int:
+        """The body id of a valid push of the character (`push`); MimicKitError (one line) otherwise."""
+        if body not in self.push_bodies:
+            raise MimicKitError(f"no body {body[:60]!r} on the character; its bodies: {', '.join(self.push_bodies)}")
+        f = np.asarray(force, dtype=np.float64).reshape(-1)
+        if f.shape != (3,) or not np.isfinite(f).all():
+            raise MimicKitError("force must be 3 finite numbers [x, y, z] in newtons (world frame, z up)")
+        if np.linalg.norm(f) > MAX_PUSH_N:
+            raise MimicKitError(f"a force of {np.linalg.norm(f):.0f} N is more than a push's {MAX_PUSH_N:.0f} N")
+        if not (np.isfinite(duration_s) and 0 < duration_s <= MAX_PUSH_S):
+            raise MimicKitError(f"duration_s must be above 0 and at most {MAX_PUSH_S:g} s, not {duration_s}")
+        return self.push_bodies.index(body)
+
+    def push(self, body: str, force: list[float] | tuple[float, ...], duration_s: float) -> dict[str, Any]:
+        """Push the character's `body` with `force` (N, world frame, at its centre of mass) over the next
+        control steps (`Engine.apply_body_force`: whole steps); it acts from the next simulated step and
+        ends with the episode. Bounds: MAX_PUSH_N, MAX_PUSH_S."""
+        body_id = self.check_push(body, force, duration_s)
+        f = [float(x) for x in force]
+        steps = self.env.engine.apply_body_force(0, self.env.get_char_id(), body_id, f, duration_s=float(duration_s))
+        self._push_steps[body_id] = steps
+        return {"body": body, "force": f, "duration_s": steps * self.dt, "steps": steps}
+
+    def _acting_pushes(self) -> tuple[PushMark, ...]:
+        """The character's pushes the next step applies, as recorded marks."""
+        char = self.env.get_char_id()
+        marks = []
+        for f in self.env.engine.get_body_forces(0):
+            if f.obj_id != char:
+                continue
+            total = self._push_steps.get(f.body_id, f.steps_left)
+            force = (float(f.force[0]), float(f.force[1]), float(f.force[2]))
+            name, view_body = self.push_bodies[f.body_id], int(self.char_bodies[f.body_id])
+            marks.append(PushMark(name, view_body, force, total * self.dt, f.steps_left == total))
+        return tuple(marks)
+
     def hold(self) -> Frame:
         """One control step of waiting after an ended episode: its last pose again, no reward (an A/B
         partner still runs; both histories keep one frame per step)."""
         self.steps += 1
-        frame = replace(self.history[-1], step=self.steps, reward=None, terms=None, waiting=True)
+        frame = replace(
+            self.history[-1], step=self.steps, reward=None, terms=None, waiting=True, push=(), fall_after_push_s=None
+        )
         self.history.append(frame)
         return frame
 
@@ -317,9 +405,16 @@ class Rollout:
     def close(self) -> None:
         self.env.engine.close()  # every engine has one (mimickit.engines.engine.Engine)
 
-    def _record(self, reward: float | None, terms: dict[str, float] | None, done: int) -> Frame:
+    def _record(
+        self, reward: float | None, terms: dict[str, float] | None, done: int, pushes: tuple[PushMark, ...] = ()
+    ) -> Frame:
         qpos = self.env.engine.mujoco_view(0).data.qpos.copy()  # the character and the ghost of this step
         frame = Frame(self.steps, self.episode, self.episode_step, qpos, reward, terms, self.episode_return, done)
+        frame.push = pushes
+        if any(p.start for p in pushes):
+            self._last_push_step = self.steps  # the step it began on: the plot's push marker
+        if done == DoneFlags.FAIL and self._last_push_step is not None:  # a fall, not the time limit or clip end
+            frame.fall_after_push_s = round((self.steps - self._last_push_step) * self.dt, 3)
         if self.body_names:  # only for an env that tracks a reference (see __init__)
             frame.body_error = self.env.body_pos_errors()[0].cpu().numpy().astype(np.float64)
         self.history.append(frame)
@@ -358,7 +453,7 @@ class Lockstep(Protocol):
     @property
     def sides(self) -> tuple[Rollout, Rollout]: ...
 
-    def reset(self) -> None: ...
+    def reset(self, same_start: bool = False) -> None: ...
 
     def step(self) -> None: ...
 
@@ -376,6 +471,8 @@ class RolloutState:
     updates: int = 0  # scene updates sent
     height: float = 0.0  # how far the ground is lowered when following (see RolloutPlayer._height)
     root_pos: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    push_body: str | None = None  # the body a click in the 3D view picked for the page's Push (None: the root)
+    last_push: dict[str, Any] | None = None  # the last push given: body, force, duration_s, steps, at_step
 
 
 class RolloutPlayer(Playable):
@@ -405,6 +502,7 @@ class RolloutPlayer(Playable):
             # B's character is drawn only by its body meshes (A's also by mjviser): all of them, always.
             b = (pair.b.model, pair.b.ghost_bodies, pair.b.char_bodies) if pair is not None else None
             scene.show_rollout(*_figure(rollout), partner=b)
+            scene.on_body_click(self._clicked)  # a click on one of A's bodies picks it for a push
         now = time.monotonic()
         self._next_t, self._next_poll = now, now + RELOAD_POLL_S
         self._draw()
@@ -462,9 +560,10 @@ class RolloutPlayer(Playable):
         self._changed()
 
     @command
-    def reset(self) -> None:
-        """Start a new episode now (an A/B pair: both, from one clip state)."""
-        (self.pair or self.rollout).reset()
+    def reset(self, same_start: bool = False) -> None:
+        """Start a new episode now (an A/B pair: both, from one clip state); `same_start`: from the clip
+        state the last one started from."""
+        (self.pair or self.rollout).reset(same_start)
         self.state.view = None
         self._draw()
 
@@ -472,6 +571,36 @@ class RolloutPlayer(Playable):
     def close(self) -> None:
         self.state.playing = False
         (self.pair or self.rollout).close()
+
+    @command
+    def push(self, body: str | None, force: list[float], duration_s: float) -> dict[str, Any]:
+        """Push `body` of the character (None: the one a click picked, else the root; of both in an A/B
+        rollout: the same push, for a fair comparison) from the next simulated step (`Rollout.push`); the
+        view goes to the live end, where it acts."""
+        body = body or self.state.push_body or self.rollout.push_bodies[0]
+        for r in self.sides:  # every side accepts it before any is pushed
+            r.check_push(body, force, duration_s)
+        given = [r.push(body, force, duration_s) for r in self.sides][0]
+        self.state.last_push = {**given, "at_step": self.rollout.steps + 1}
+        self.state.view = None
+        self._draw()
+        return given
+
+    @command
+    def pick(self, view_body: int) -> None:
+        """A click in the 3D view on the character's body `view_body` (a MuJoCo body id of A's model)."""
+        r = self.rollout
+        hit = np.flatnonzero(np.asarray(r.char_bodies) == view_body)
+        if len(hit):
+            self.state.push_body = r.push_bodies[int(hit[0])]
+            self._changed()
+
+    def _clicked(self, view_body: int) -> None:
+        """viser's callback (its thread pool): queued for the scene thread, not waited for."""
+        if self.owner is None:
+            self.pick(view_body)
+        else:
+            self.owner.submit(self.pick, view_body)
 
     @property
     def sides(self) -> tuple[Rollout, ...]:
@@ -534,6 +663,14 @@ class RolloutPlayer(Playable):
             "reward_weights": r.reward_weights,
             "motion_files": r.motion_files,
             "history_seconds": len(r.history) * r.dt,
+            "push": {  # what the page's Push control offers and what it last did
+                "bodies": r.push_bodies,
+                "picked": s.push_body or r.push_bodies[0],
+                "max_force_n": MAX_PUSH_N,
+                "max_duration_s": MAX_PUSH_S,
+                "last": s.last_push,
+                "acting": [p.to_json() for p in shown.push],  # on the frame shown
+            },
             "shown": {
                 "step": shown.step,
                 "episode": shown.episode,
@@ -581,6 +718,8 @@ class RolloutPlayer(Playable):
             "reward": f.reward,
             "terms": f.terms or {},
             "body_error": None if f.body_error is None else [round(float(e), 5) for e in f.body_error],
+            "push": [p.to_json() for p in f.push if p.start] or None,  # pushes that began on this step
+            "fall_after_push_s": f.fall_after_push_s,
         }
         if self.pair is not None:
             b = self.pair.b.history[i]
@@ -619,12 +758,15 @@ class RolloutPlayer(Playable):
         # Following keeps the pair in view: the point halfway between the character and its ghost.
         centre = root if r.ghost_root is None else 0.5 * (root + xpos[r.ghost_root])
         partner, partner_errors = None, None
+        arrows = _push_arrows(frame, xpos)
         if self.pair is not None:  # B's frame i is the same moment as A's (studio.scene.rollout_pair)
             b = self.pair.b
             b_frame = b.history[i]
             partner, partner_errors = b.pose(b_frame), b.body_error_colours(b_frame)
+            arrows = np.concatenate([arrows, _push_arrows(b_frame, partner[0] + PAIR_LANE)])
         if self.scene is not None:
             self.scene.draw_bodies(xpos, xmat, centre, self.state.follow, self.state.height, partner)
+            self.scene.draw_push(arrows)
             self.scene.colour_bodies(r.body_error_colours(frame), BODY_ERROR_SCALE_M, partner_errors)
         self.state.root_pos = root.astype(float).tolist()
         self.state.updates += 1
@@ -688,6 +830,19 @@ class RolloutPlayer(Playable):
             self.rollout.error = f"simulation stopped: {e!r}"
             self._changed()
         self._next_t = max(self._next_t + period, now - period)
+
+
+def _push_arrows(frame: Frame, xpos: np.ndarray) -> np.ndarray:
+    """[P, 2, 3] arrows (tail, head) of the pushes acting in `frame`, `xpos` its bodies where they are
+    drawn: each ends at its body, pointing along the force, longer for a stronger push (0.3 m to 1.3 m)."""
+    arrows = []
+    for p in frame.push:
+        f = np.asarray(p.force)
+        n = float(np.linalg.norm(f))
+        if n > 0.0:
+            head = xpos[p.view_body]
+            arrows.append((head - f / n * (0.3 + n / MAX_PUSH_N), head))
+    return np.asarray(arrows, dtype=np.float64).reshape(-1, 2, 3)
 
 
 def _figure(r: Rollout) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray | None]:

@@ -16,6 +16,7 @@ MimicKitError line naming the difference.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import torch
@@ -91,9 +92,9 @@ class RolloutPair:
     def sides(self) -> tuple[Rollout, Rollout]:
         return self.a, self.b
 
-    def reset(self) -> None:
-        """Both start a new episode from the clip state A's reset draws."""
-        self._start(Rollout.reset)
+    def reset(self, same_start: bool = False) -> None:
+        """Both start a new episode from the clip state A's reset draws (`same_start`: A's last start)."""
+        self._start(functools.partial(Rollout.reset, same_start=same_start), Rollout.reset)
 
     def step(self) -> None:
         """One control step of each (an ended one holds its pose); the next pair once both have ended."""
@@ -116,9 +117,9 @@ class RolloutPair:
         for r in self.sides:
             r.close()
 
-    def _start(self, start: Callable[[Rollout], None]) -> None:
-        """`start` A (its env draws the clip state), then B from that same state."""
+    def _start(self, start: Callable[[Rollout], None], start_b: Callable[[Rollout], None] | None = None) -> None:
+        """`start` A (its env draws the clip state), then B (by `start_b`, default `start`) from that same state."""
         start(self.a)
         env = self.a.env
         self.b.env.start_next_resets_at(env.get_motion_ids(), env.get_motion_time())
-        start(self.b)
+        (start_b or start)(self.b)

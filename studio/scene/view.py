@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import re
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,6 +48,7 @@ ROLLOUT_CAMERA = {"position": (0.5, -3.4, 1.35), "look_at": (0.75, 0.0, 0.7)}
 # An A/B rollout: B's character and ghost in a second lane 3 m behind A's (+y), seen from higher up
 # at the front, so that B's row stands above A's in the picture instead of hidden behind it.
 PAIR_LANE = np.array([0.0, 3.0, 0.0])
+PUSH_COLOR = (0, 200, 255)  # a push's arrow: cyan, apart from the error colours (green to red) and the ghost
 PAIR_CAMERA = {"position": (0.0, -3.3, 3.4), "look_at": (0.0, 1.5, 0.7)}
 CLIP_CAMERA = {"position": (2.2, -2.6, 1.5), "look_at": (0.0, 0.0, 0.8)}
 PATH_COLOR = (250, 176, 5)
@@ -133,6 +135,7 @@ class StudioScene:
         self._error_meshes: list[tuple[int, viser.MeshHandle]] = []  # the character's bodies, by error
         self._error_colours: list[tuple[int, int, int] | None] = []  # the colour each was last sent
         self._partner: _Partner | None = None  # B of an A/B rollout
+        self._push_shown = False  # whether push arrows are drawn (see draw_push)
         server.scene.set_up_direction("+z")
         server.scene.world_axes.visible = False
         self.world = server.scene.add_frame("/world", show_axes=False)
@@ -311,6 +314,31 @@ class StudioScene:
             out.append((int(b), handle))
         return out
 
+    def on_body_click(self, callback: Callable[[int], None]) -> None:
+        """Call `callback(MuJoCo body id)` (on viser's thread pool) when one of the rollout character's
+        bodies is clicked in the 3D view: the bodies drawn one mesh each (`show_rollout`'s `error_bodies`;
+        an env without them has nothing to click). A click, not a drag: viser reports no drag on a node,
+        and its rectangle select gives the box's corners, not which way it was drawn."""
+        with self._lock:
+            for b, h in self._error_meshes:
+                h.on_click(lambda _event, b=b: callback(b))
+
+    def draw_push(self, arrows: np.ndarray) -> None:
+        """Draw the pushes acting now: `arrows` [P, 2, 3] (tail, head) in the rollout model's world; none
+        removes them."""
+        with self._lock:
+            if self.mode != "rollout" or (not len(arrows) and not self._push_shown):
+                return
+            if len(arrows):
+                self.server.scene.add_arrows(
+                    "/world/push", arrows.astype(np.float32), PUSH_COLOR, shaft_radius=0.035, head_radius=0.08,
+                    head_length=0.15,
+                )  # fmt: skip
+            else:
+                self.server.scene.remove_by_name("/world/push")
+            self._push_shown = bool(len(arrows))
+            self.server.flush()  # as draw_bodies: sent now, not with the next frame (paused: none comes)
+
     def colour_bodies(
         self, errors: dict[int, float], scale_m: float = BODY_ERROR_SCALE_M, partner: dict[int, float] | None = None
     ) -> None:
@@ -405,6 +433,8 @@ class StudioScene:
         self.server.scene.remove_by_name("/ghost")
         self.server.scene.remove_by_name("/error_bodies")
         self.server.scene.remove_by_name("/b")
+        self.server.scene.remove_by_name("/world/push")
+        self._push_shown = False
         self.server.scene.remove_by_name("/bodies")
         self.server.scene.remove_by_name("/fixed_bodies")
         self._mj = None

@@ -48,3 +48,21 @@ def final_dofs_by_mode(make_engine: Callable[[str, int], Engine], target: torch.
             engine.step()
         finals[mode] = engine.get_dof_pos(0).clone()
     return finals
+
+
+def push_standing(engine: Engine, force: tuple[float, float, float] = (400.0, 0.0, 0.0)) -> dict:
+    """Two standing humanoids (envs 0 and 1, PD holding the init pose); env 0's pelvis (body 0) is pushed
+    with `force` for 0.2 s, env 1 is the same run without the push. Returns the push's control steps,
+    the pushes left right after it ended, and both roots' positions [2, 3] 0.5 s after it began."""
+    engine.set_dof_pos(None, 0, init_dof(2))
+    engine.set_cmd(0, init_dof(2))
+    for _ in range(10):  # settle on the feet
+        engine.step()
+    steps = engine.apply_body_force(0, 0, 0, force, duration_s=0.2)
+    acting = engine.get_body_forces()
+    for _ in range(steps):
+        engine.step()
+    left = engine.get_body_forces()
+    for _ in range(15 - steps):
+        engine.step()
+    return {"steps": steps, "acting": acting, "left": left, "root_pos": engine.get_root_pos(0).clone()}

@@ -21,6 +21,7 @@ from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA_DIR
 from tests import conftest
 from tests.conftest import PROJECT_HUMANOID
+from tests.engines import humanoid_cases
 from tests.engines.humanoid_cases import INIT_ROOT_POS, init_dof
 
 R_SHOULDER, L_SHOULDER = slice(6, 9), slice(10, 13)  # exp-map columns in the humanoid DoF layout
@@ -485,3 +486,39 @@ def test_env_objects_must_match(humanoid_xml, tmp_path):
         engine.initialize_sim()
     with pytest.raises(MimicKitError, match="not found"):
         engine.create_obj(0, ObjType.articulated, str(tmp_path / "missing.xml"), "x")
+
+
+# ---------------------------------------------------------------------------------------------- pushes
+def test_a_pelvis_push_moves_the_root_and_ends_after_its_duration(humanoid_xml):
+    engine = make_engine(humanoid_xml, num_envs=2)
+    out = humanoid_cases.push_standing(engine)
+    assert out["steps"] == 6  # 0.2 s at 30 Hz
+    assert [(f.env_id, f.obj_id, f.body_id, f.steps_left) for f in out["acting"]] == [(0, 0, 0, 6)]
+    pos = out["root_pos"]
+    dx = (pos[0, 0] - pos[1, 0]).item()
+    assert dx > 0.1, pos  # pushed along +x, against the same run without the push
+    assert abs(pos[1, 0].item()) < 0.05  # the unpushed twin stood where it was
+    assert out["left"] == [] and not engine.mj_datas[0].xfrc_applied.any()  # gone after 0.2 s
+
+
+def test_a_reset_ends_a_push_and_bad_pushes_are_refused(humanoid_xml):
+    engine = make_engine(humanoid_xml, num_envs=2)
+    engine.apply_body_force(1, 0, 3, [0.0, 200.0, 0.0], torque=[0.0, 0.0, 5.0], duration_s=1.0)
+    body = engine.obj_layout(0).body_ids[3]
+    assert engine.mj_datas[1].xfrc_applied[body].tolist() == [0.0, 200.0, 0.0, 0.0, 0.0, 5.0]
+    engine.step()
+    assert engine.get_body_forces(1)[0].steps_left == 29
+    engine.set_root_state([0], 0, torch.tensor(INIT_ROOT_POS), torch.tensor([0.0, 0, 0, 1]), 0.0, 0.0)
+    assert len(engine.get_body_forces()) == 1  # env 0's reset leaves env 1's push
+    engine.set_root_state([1], 0, torch.tensor(INIT_ROOT_POS), torch.tensor([0.0, 0, 0, 1]), 0.0, 0.0)
+    assert engine.get_body_forces() == [] and not engine.mj_datas[1].xfrc_applied.any()
+    for bad, match in (
+        ({"body_id": 99}, "bodies, not body 99"),
+        ({"force": [float("nan"), 0, 0]}, "finite"),
+        ({"force": [1.0, 2.0]}, "finite"),
+        ({"duration_s": 0.0}, "positive"),
+        ({"env_id": 2}, "out of range"),
+    ):
+        args = {"env_id": 0, "obj_id": 0, "body_id": 0, "force": [1.0, 0, 0], **bad}
+        with pytest.raises(MimicKitError, match=match):
+            engine.apply_body_force(**args)

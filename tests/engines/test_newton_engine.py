@@ -36,6 +36,7 @@ from tests.engines.humanoid_cases import (  # noqa: E402
     ball_target,
     final_dofs_by_mode,
     init_dof,
+    push_standing,
     random_pd_state,
 )
 
@@ -135,6 +136,14 @@ def test_disable_motors_leaves_a_limp_object_and_torque_mode_is_clipped():
     engine.step()
     limit = torch.from_numpy(engine.get_obj_torque_limits(0, 0)).float()
     torch.testing.assert_close(engine.get_dof_forces(0)[0], limit)
+
+
+def test_a_pelvis_push_moves_the_root_as_in_the_mujoco_engine():
+    """body_f carries the push through every substep (it is cleared before each), for 0.2 s only."""
+    outs = {name: push_standing(make_engine(2, engine_name=name)) for name in ("newton", "mujoco")}
+    assert outs["newton"]["steps"] == 6 and outs["newton"]["left"] == []
+    dx = {k: (o["root_pos"][0, 0] - o["root_pos"][1, 0]).item() for k, o in outs.items()}
+    assert dx["newton"] > 0.1 and abs(dx["newton"] - dx["mujoco"]) < 0.5 * dx["mujoco"], dx
 
 
 def test_visual_ghost_neither_collides_nor_falls():
