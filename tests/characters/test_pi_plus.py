@@ -5,6 +5,7 @@ studio's library and scene find PI+ for its clip."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import warnings
@@ -112,7 +113,10 @@ def test_view_motion_plays_the_clip_as_kinematic_fk(pi_data: Path) -> None:
     assert worst < 1e-3, f"engine bodies {worst * 1000:.2f} mm off the clip's FK"
 
 
-@pytest.mark.parametrize("arg_file", ["deepmimic_pi_plus_ppo_args.txt", "view_motion_pi_plus_args.txt"])
+@pytest.mark.parametrize(
+    "arg_file",
+    ["deepmimic_pi_plus_ppo_args.txt", "view_motion_pi_plus_args.txt", "add_pi_plus_args.txt", "amp_pi_plus_args.txt"],
+)
 def test_arg_files_build_their_env(arg_file: str, pi_data: Path) -> None:
     args = ArgParser()
     args.load_args(["--arg_file", str(PROJECT_ROOT / "args" / arg_file)])
@@ -129,6 +133,22 @@ def test_arg_files_build_their_env(arg_file: str, pi_data: Path) -> None:
     assert agent.get_obs_size() == env.get_obs_space().shape[0]
     action = agent.compute_action(obs)
     assert action.shape == (2, DOFS) and torch.isfinite(action).all()
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("method", ["add", "amp"])
+def test_adversarial_arg_files_train_two_iterations(method: str, pi_data: Path, tmp_path: Path) -> None:
+    """MimicKit's add_pi_plus_args.txt and amp_pi_plus_args.txt counterparts: two iterations of 32 envs, with
+    their discriminator's loss logged. (With 2 or 8 envs, 64 or 256 samples an iteration, AMP's critic
+    sometimes blew up in its second iteration, the G1's as well: predictions of -1e19, a diverged run; the
+    observation normaliser's first estimate comes from that one iteration's samples, as the reference's.)"""
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "mimickit.cli", "train", "--arg_file", f"args/{method}_pi_plus_args.txt"]
+    cmd += ["--data_dir", str(pi_data), "--num_envs", "32", "--max_samples", "2048", "--out_dir", str(out)]
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=PROJECT_ROOT, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [row["samples"] for row in rows] == [1024, 2048] and all(row["disc_loss"] > 0 for row in rows)
 
 
 @pytest.mark.integration
