@@ -24,7 +24,7 @@ mostly the queue in front of the client; `--client httpx` measures with it.
 its step count from `/api/scene/state` over S seconds: steps/s against its control rate (30/s).
 `--page-clicks N` then: headless Chromium at 1280×720 clicks Play/Pause and Step N times each while the
 clip plays in the visible 3D view, the page timing each click to its visible change
-(benchmarks/page_latency.py), with the page's 3D view at "auto" and at "full" resolution.
+(benchmarks/page_latency.py), with the page's 3D view at each of `--page-qualities` (default "auto,full").
 `--idle-seconds S` last: the rollout closed, the clip paused, no stream and no viser client open, the
 server's CPU (user + system, /proc/PID/stat) over S seconds as a share of one core; needs the server
 started here or `--server-pid`. All of it inside `--train-cmd`:
@@ -338,6 +338,7 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument(
         "--page-clicks", type=int, help="then: Chromium clicks Play/Pause/Step while the clip plays (page_latency.py)"
     )
+    ap.add_argument("--page-qualities", default="auto,full", help="with --page-clicks: the 3D view settings compared")
     ap.add_argument("--idle-seconds", type=float, help="last: the server's CPU, scene paused, nothing connected")
     ap.add_argument("--server-pid", type=int, help="with --url: the server's pid (for --idle-seconds)")
     ap.add_argument("--json", action="store_true")
@@ -372,7 +373,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         m["rollout"] = rollout_rate(c, checkpoint, args.rollout_seconds) if args.rollout_seconds else None
         if args.page_clicks:
             c.post("/api/scene/load_clip", json={"path": args.clip, "play": True}).raise_for_status()
-            m["page"] = click_latency(base, args.page_clicks, ["auto", "full"], rounds=1)
+            m["page"] = click_latency(base, args.page_clicks, args.page_qualities.split(","), rounds=1)
         m["idle"] = idle_cpu(c, pid, args.idle_seconds) if args.idle_seconds else None
         if not m["idle"]:
             c.post("/api/scene/pause", json={})
