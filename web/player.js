@@ -116,6 +116,19 @@ export async function loadRollout(body) {
 
 // One side's label: who, the training its weights have seen, when its checkpoint was saved, the episode
 // shown and its reward terms.
+// A task env's target (ShowsTaskTarget): where it is and how far the character is from it.
+function taskText(t) {
+  if (!t) return "";
+  if (t.kind === "location") {
+    return ` · target (${t.x.toFixed(1)}, ${t.y.toFixed(1)}) ${t.distance_m.toFixed(2)} m away${t.reached ? ", reached" : ""}`;
+  }
+  if (t.kind === "steering") {
+    return ` · target heading ${t.heading_deg.toFixed(0)}° at ${t.speed_mps.toFixed(2)} m/s` +
+      ` (now ${t.speed_along_mps.toFixed(2)} m/s along it), facing ${t.facing_deg.toFixed(0)}°`;
+  }
+  return ` · target ${JSON.stringify(t)}`;
+}
+
 function sideLabel(r, side) {
   const who = r.run_id !== null ? `run #${r.run_id} ${r.run_name || ""}` : r.checkpoint.split("/").slice(-2).join("/");
   const saved = new Date(r.checkpoint_mtime * 1000).toLocaleTimeString();
@@ -124,7 +137,7 @@ function sideLabel(r, side) {
   const terms = Object.entries(r.reward_terms).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(" · ");
   return `${side ? `${side}: ` : ""}${who} · ${trained} · file saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
     ` · episode ${r.episode} · return ${r.episode_return.toFixed(2)}${r.waiting ? " · ended, waiting for the other" : ""}` +
-    `${terms ? ` · ${terms}` : ""}${r.error ? ` · ${r.error}` : ""}`;
+    `${taskText(r.task)}${terms ? ` · ${terms}` : ""}${r.error ? ` · ${r.error}` : ""}`;
 }
 
 const plotOptions = (title) => ({

@@ -20,12 +20,13 @@ import torch
 from mimickit.engines.engine import ObjType
 from mimickit.envs.amp_env import AMPEnv
 from mimickit.envs.env_config import TaskLocationEnvConfig, TaskSteeringEnvConfig
+from mimickit.envs.viewable import ShowsTaskTarget
 from mimickit.util import torch_util as tu
 
 MARKER_COLOR = (0.8, 0.3, 0.1)
 
 
-class AMPTaskEnv(AMPEnv, abc.ABC):
+class AMPTaskEnv(AMPEnv, ShowsTaskTarget, abc.ABC):
     config: TaskLocationEnvConfig | TaskSteeringEnvConfig  # type: ignore[assignment]
     marker_file = ""  # MJCF of the target marker (data/... path, looked up like every asset)
 

@@ -34,6 +34,17 @@ class TaskLocationEnv(AMPTaskEnv):
         """Target positions [N, 3] (z = 0)."""
         return self._tar_pos
 
+    def task_target(self, env_id: int = 0) -> dict[str, float | bool | str]:
+        """The target's xy, its distance from the root (m) and whether this target was reached."""
+        tar, root = self._tar_pos[env_id], self._root_pos()[env_id]
+        return {
+            "kind": "location",
+            "x": round(float(tar[0]), 3),
+            "y": round(float(tar[1]), 3),
+            "distance_m": round(float((tar[:2] - root[:2]).norm()), 3),
+            "reached": bool(self._tar_reached[env_id]),
+        }
+
     def record_diagnostics(self) -> dict[str, float]:
         """Episodes that ended since the previous call and the share that reached their target
         (0 when none ended: read it together with the count)."""

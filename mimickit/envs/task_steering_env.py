@@ -35,6 +35,19 @@ class TaskSteeringEnv(AMPTaskEnv):
         """tar_dir [N, 2], face_dir [N, 2] (unit, world xy) and tar_speed [N] (m/s)."""
         return {"tar_dir": self._tar_dir, "face_dir": self._face_dir, "tar_speed": self._tar_speed}
 
+    def task_target(self, env_id: int = 0) -> dict[str, float | bool | str]:
+        """The commanded direction and facing (degrees, world frame, x = 0°) and speed, and the root's
+        speed along the commanded direction over the last control step (m/s)."""
+        d, f = self._tar_dir[env_id], self._face_dir[env_id]
+        along = float((self._root_speed()[env_id, :2] * d).sum())
+        return {
+            "kind": "steering",
+            "heading_deg": round(math.degrees(math.atan2(float(d[1]), float(d[0]))), 1),
+            "facing_deg": round(math.degrees(math.atan2(float(f[1]), float(f[0]))), 1),
+            "speed_mps": round(float(self._tar_speed[env_id]), 3),
+            "speed_along_mps": round(along, 3),
+        }
+
     # -------------------------------------------------------------- targets
     def _sample_targets(self, env_ids: torch.Tensor) -> None:
         n, cfg, dev = len(env_ids), self.config, self.device

@@ -9,7 +9,11 @@ AMP, ASE, ADD, the AMP task envs). The clips it plays, the weight of each reward
 error against the reference pose, and starting the next
 episodes from given clip states (an A/B rollout starts both sides from one).
 
-A viewer asks `isinstance(env, TracksReference)` for what it may show beyond the character.
+`ShowsTaskTarget`: an env with a task beside imitation (the AMP location and steering envs): what env 0's
+task asks now, as a few numbers a viewer shows beside its marker.
+
+A viewer asks `isinstance(env, TracksReference)` (and `ShowsTaskTarget`) for what it may show beyond the
+character.
 """
 
 from __future__ import annotations
@@ -82,3 +86,12 @@ class TracksReference(Viewable):
     @abc.abstractmethod
     def start_next_resets_at(self, motion_ids: torch.Tensor, times: torch.Tensor) -> None:
         """The next resets start from these clip states (motion ids [n], times [n]), before any sampled one."""
+
+
+class ShowsTaskTarget(abc.ABC):
+    """An env whose task has a target a viewer shows (see the module docstring)."""
+
+    @abc.abstractmethod
+    def task_target(self, env_id: int = 0) -> dict[str, float | bool | str]:
+        """What env `env_id`'s task asks now and how far it is from it, in plain units: `kind` (the
+        task's name) and the task's own keys (metres, m/s, degrees, booleans)."""

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from mimickit.envs.base_env import DoneFlags
-from mimickit.envs.viewable import TracksReference
+from mimickit.envs.viewable import ShowsTaskTarget, TracksReference
 from mimickit.learning.run_folder import AGENT_CONFIG_FILE, ENGINE_CONFIG_FILE, ENV_CONFIG_FILE, RunFolder
 from mimickit.runner.inputs import RunInputs
 from mimickit.runner.policy import load_policy
@@ -192,6 +192,7 @@ class Frame:
     waiting: bool = False  # an ended episode's last pose, held while an A/B partner still runs
     push: tuple[PushMark, ...] = ()  # the pushes that acted on the character during this step
     fall_after_push_s: float | None = None  # a fall (done 1) ending an episode, seconds after its last push
+    task: dict[str, float | bool | str] | None = None  # a task env's target at this step (ShowsTaskTarget)
 
 
 @dataclass(frozen=True, slots=True)
@@ -417,6 +418,8 @@ class Rollout:
             frame.fall_after_push_s = round((self.steps - self._last_push_step) * self.dt, 3)
         if self.body_names:  # only for an env that tracks a reference (see __init__)
             frame.body_error = self.env.body_pos_errors()[0].cpu().numpy().astype(np.float64)
+        if isinstance(self.env, ShowsTaskTarget):  # recorded per frame: scrubbing back shows that step's
+            frame.task = self.env.task_target(0)
         self.history.append(frame)
         return frame
 
@@ -869,6 +872,7 @@ def _side_json(r: Rollout, i: int) -> dict[str, Any]:
         "reward": shown.reward,
         "reward_terms": shown.terms or {},
         "body_error": r.body_error_json(shown),
+        "task": shown.task,  # a task env's target (ShowsTaskTarget), else None
         "waiting": shown.waiting,
         "episodes": [e.to_json() for e in list(r.episodes)[-10:]],
     }
