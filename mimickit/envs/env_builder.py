@@ -23,6 +23,7 @@ from mimickit.envs.env_config import (
     CharDofTestEnvConfig,
     CharEnvConfig,
     DeepMimicEnvConfig,
+    StaticObjectsEnvConfig,
     TaskLocationEnvConfig,
     TaskSteeringEnvConfig,
     ViewMotionEnvConfig,
@@ -47,6 +48,7 @@ ENVS: Registry[CharEnvConfig, SimEnv] = Registry(
     {
         "char": Entry(CharEnvConfig, "mimickit.envs.char_env:CharEnv"),
         "deepmimic": Entry(DeepMimicEnvConfig, "mimickit.envs.deepmimic_env:DeepMimicEnv"),
+        "static_objects": Entry(StaticObjectsEnvConfig, "mimickit.envs.static_objects_env:StaticObjectsEnv"),
         "amp": Entry(AMPEnvConfig, "mimickit.envs.amp_env:AMPEnv"),
         "add": Entry(ADDEnvConfig, "mimickit.envs.add_env:ADDEnv"),
         "ase": Entry(ASEEnvConfig, "mimickit.envs.ase_env:ASEEnv"),

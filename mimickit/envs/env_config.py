@@ -66,6 +66,29 @@ class DeepMimicEnvConfig(CharEnvConfig, DeepMimicRewardConfig):
         return self
 
 
+MAX_STATIC_OBJECTS = 64
+
+
+class StaticObjectConfig(ConfigModel):
+    """One fixed object of the `static_objects` env: an MJCF asset at `pos` (m) turned by `rot` (xyzw)."""
+
+    file: str
+    pos: list[float] = Field(min_length=3, max_length=3)
+    rot: list[float] = Field([0.0, 0.0, 0.0, 1.0], min_length=4, max_length=4)
+
+    @model_validator(mode="after")
+    def _unit_rotation(self) -> StaticObjectConfig:
+        if abs(sum(c * c for c in self.rot) ** 0.5 - 1.0) > 1e-3:
+            raise ValueError(f"rot {self.rot} is not a unit quaternion (x, y, z, w)")
+        return self
+
+
+class StaticObjectsEnvConfig(DeepMimicEnvConfig):
+    """DeepMimic with objects fixed in the world that the character collides with (vaults, boxes)."""
+
+    objects: list[StaticObjectConfig] = Field(min_length=1, max_length=MAX_STATIC_OBJECTS)
+
+
 class AMPEnvConfig(DeepMimicEnvConfig):
     num_disc_obs_steps: int = Field(ge=1, le=MAX_DISC_OBS_STEPS)
     """Steps of state history in one discriminator observation (humanoid: 10)."""

@@ -239,6 +239,10 @@ class Rollout:
         view = engine.mujoco_view(0)  # every engine draws through a MuJoCo model of its scene
         self.model: mujoco.MjModel = view.model
         self._scratch = mujoco.MjData(self.model)  # for drawing recorded frames
+        # Objects welded to the world (the static_objects env's boxes) are mocap bodies: their pose is not
+        # in qpos, so a recorded frame is drawn with the engine's (it never changes after the env is built).
+        self._scratch.mocap_pos[:] = view.data.mocap_pos
+        self._scratch.mocap_quat[:] = view.data.mocap_quat
         self.dt = float(engine.get_timestep())
         # The character's and the ghost's bodies in that model, by the env's object ids.
         self.root_body = int(view.objects[self.env.get_char_id()].body_ids[0])
