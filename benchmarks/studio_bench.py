@@ -279,6 +279,7 @@ def rollout_rate(c: httpx.Client, checkpoint: dict[str, str], seconds: float) ->
     (t0, s0), (t1, s1) = samples[0], samples[-1]
     return {
         "checkpoint": checkpoint["checkpoint"],
+        "num_envs": loaded["rollout"]["envs"]["num_envs"],
         "control_rate": loaded["rollout"]["control_freq"],
         "steps": s1 - s0,
         "seconds": round(t1 - t0, 2),
@@ -330,6 +331,7 @@ def parse_args() -> argparse.Namespace:
         "--client", choices=("raw", "httpx"), default="raw", help="with --duration: what the request loops use"
     )
     ap.add_argument("--rollout-seconds", type=float, help="then: roll out --checkpoint and count its steps/s")
+    ap.add_argument("--rollout-envs", type=int, help="the rollout's num_envs (1-16; default: the body's, else 1)")
     ap.add_argument(
         "--checkpoint",
         default=json.dumps(DEMO_ROLLOUT),
@@ -353,6 +355,8 @@ def parse_args() -> argparse.Namespace:
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     """Every measurement, in order, against one server (and inside `--train-cmd`): the raw figures."""
     checkpoint = json.loads(args.checkpoint)
+    if args.rollout_envs:  # several envs of the policy at once, drawn on a grid
+        checkpoint = {**checkpoint, "num_envs": args.rollout_envs}
     m: dict[str, Any] = {"errors": 0, "events": [], "page": None}
     with (
         studio_server(args) as (base, pid),
@@ -434,7 +438,8 @@ def report(args: argparse.Namespace, m: dict[str, Any], result: dict[str, Any]) 
         print(f"    {path:<20} p50 {p50:7.1f} ms  p99 {p99:7.1f} ms")
     if rollout := m["rollout"]:
         print(
-            f"  rollout of {rollout['checkpoint']}: {rollout['steps_per_s']} steps/s over {rollout['seconds']} s "
+            f"  rollout of {rollout['checkpoint']} ({rollout['num_envs']} envs): {rollout['steps_per_s']} steps/s"
+            f" over {rollout['seconds']} s "
             f"(control rate {rollout['control_rate']:g}/s; 1-s windows {rollout['slowest_1s']}"
             f"-{rollout['fastest_1s']})"
         )

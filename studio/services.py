@@ -25,7 +25,7 @@ from studio.runs.registry import Registry
 from studio.runs.run_list import RunList
 from studio.scene.playable import Playable
 from studio.scene.player import Player
-from studio.scene.rollout import Rollout, RolloutPlayer, RolloutSource
+from studio.scene.rollout import LAYOUTS, Rollout, RolloutPlayer, RolloutSource
 from studio.scene.rollout_pair import RolloutPair
 from studio.scene.thread import SceneThread
 from studio.scene.view import StudioScene
@@ -94,12 +94,23 @@ class Studio:
         return self.scene.thread.call(run)
 
     def load_rollout(
-        self, source: RolloutSource, *, play: bool = True, partner: RolloutSource | None = None
+        self,
+        source: RolloutSource,
+        *,
+        play: bool = True,
+        partner: RolloutSource | None = None,
+        num_envs: int = 1,
+        layout: str = "grid",
     ) -> dict[str, Any]:
         """Build the rollout (MimicKitError when the checkpoint does not fit) and show it instead of
         the clip or the previous rollout; its state. `partner`: B of an A/B rollout (`source` is A);
-        MimicKitError when the two cannot pair, before the rollout shown now ends."""
-        built = _build_rollouts(source, partner)  # slow (envs, agents, checkpoints): off the scene thread
+        MimicKitError when the two cannot pair, before the rollout shown now ends. `num_envs` envs of one
+        policy, drawn as `layout` (`RolloutPlayer`); an A/B rollout has one env a side."""
+        if partner is not None and num_envs != 1:
+            raise MimicKitError(f"an A/B rollout runs one env a side, not {num_envs}: give num_envs 1 or no B")
+        if layout not in LAYOUTS:
+            raise MimicKitError(f"layout must be one of {', '.join(LAYOUTS)}, not {layout[:40]!r}")
+        built = _build_rollouts(source, partner, num_envs)  # slow (envs, agents, checkpoints): off the scene thread
         rollout = built[0]
         try:
             pair = RolloutPair(*built) if partner is not None else None  # its first start: before the hand-over
@@ -112,7 +123,7 @@ class Studio:
             self._end_rollout()
             if scene.player:
                 scene.player.pause()
-            scene.rollout = RolloutPlayer(rollout, scene.view, scene.thread, play=play, pair=pair)
+            scene.rollout = RolloutPlayer(rollout, scene.view, scene.thread, play=play, pair=pair, layout=layout)
             scene.thread.drive(scene.rollout)
             return scene.rollout.snapshot()
 
@@ -152,23 +163,24 @@ class Studio:
                 self.scene.viser_server.stop()
 
 
-def _build_rollouts(source: RolloutSource, partner: RolloutSource | None) -> list[Rollout]:
-    """A `Rollout` of `source`, and of `partner` when given; those built are closed when one fails."""
+def _build_rollouts(source: RolloutSource, partner: RolloutSource | None, num_envs: int = 1) -> list[Rollout]:
+    """A `Rollout` of `source` (`num_envs` envs), and of `partner` when given; those built are closed when
+    one fails."""
     sides = [("A", source), ("B", partner)] if partner is not None else [("", source)]
     built: list[Rollout] = []
     try:
         for side, s in sides:
-            built.append(_build_side(side, s))
+            built.append(_build_side(side, s, num_envs))
     except BaseException:
         _close_all(built)
         raise
     return built
 
 
-def _build_side(side: str, source: RolloutSource) -> Rollout:
-    """`Rollout(source)`; an A/B side's error (`side` "A" or "B") says which side, still in one line."""
+def _build_side(side: str, source: RolloutSource, num_envs: int = 1) -> Rollout:
+    """`Rollout(source, num_envs=)`; an A/B side's error (`side` "A" or "B") says which side, still in one line."""
     try:
-        return Rollout(source)
+        return Rollout(source, num_envs=num_envs)
     except Exception as e:
         if not side:
             raise

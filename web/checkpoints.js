@@ -54,7 +54,9 @@ let lastInspected = null;
 export function initCheckpoints() {
   $("rollout-button").addEventListener("click", () => {
     const path = chosenCheckpoint();
-    if (path) loadRollout({ checkpoint: path });
+    // Several envs only when asked: the body stays the one-env request otherwise.
+    const n = Number($("rollout-envs").value) || 1;
+    if (path) loadRollout({ checkpoint: path, ...(n !== 1 ? { num_envs: n, layout: $("rollout-layout").value } : {}) });
   });
   $("ab-button").addEventListener("click", () => {
     const a = chosenCheckpoint(), b = $("checkpoint-b").value;

@@ -5,6 +5,7 @@ import { $, api, el, withToken } from "./api.js";
 import { CurvePlot } from "./plots.js";
 import { BodyErrorChart } from "./body_error.js";
 import { pushView } from "./push.js";
+import { showEnvs } from "./envs_summary.js";
 
 let scrubbing = false;
 let pendingCommands = 0;
@@ -170,6 +171,7 @@ export const rolloutView = {
     this.bodyError.apply(r.body_error);  // the frame shown's (live or history)
     if (b) $("rollout-label-b").textContent = sideLabel(b, "B");
     pushView.show(r);
+    showEnvs(r.envs);  // several envs: falls per env
     const cursor = r.live ? null : s.time;
     for (const p of b ? [this.plot, this.plotB] : [this.plot]) {
       if (cursor !== p.cursor) { p.cursor = cursor; p.draw(); }

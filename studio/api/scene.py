@@ -8,7 +8,7 @@ import os
 import re
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import FileResponse
@@ -25,7 +25,7 @@ from studio.runs.checkpoints import check_finite_checkpoint
 from studio.scene.clip_pose import default_pose, pose_clip
 from studio.scene.playable import Playable
 from studio.scene.player import Player
-from studio.scene.rollout import RolloutPlayer, RolloutSource, source_for_checkpoint
+from studio.scene.rollout import MAX_ENVS, RolloutPlayer, RolloutSource, source_for_checkpoint
 from studio.security import confine, display_path, shown_path
 from studio.services import Studio
 
@@ -51,6 +51,8 @@ class LoadRollout(StrictBody):
     play: bool = Field(True, description="start stepping at once")
     b_run_id: int | None = Field(None, description="A/B: a second run, rolled out beside from the same clip starts")
     b_checkpoint: str | None = Field(None, description="A/B: a second checkpoint (its configs beside it)")
+    num_envs: int = Field(1, ge=1, le=MAX_ENVS, description="envs stepped together; env 0 is the main one")
+    layout: Literal["grid", "overlay"] = Field("grid", description="several envs: on a grid, or overlaid")
 
 
 class ExportReplay(StrictBody):
@@ -76,6 +78,7 @@ class Push(StrictBody):
     body: str | None = Field(None, max_length=200, description="a body of the character; default: picked, else root")
     force: list[float] = Field(min_length=3, max_length=3, description="[x, y, z] newtons, world frame, z up")
     duration_s: float = Field(0.2, description="seconds, rounded to whole control steps")
+    env: int = Field(0, description="which env of a rollout of several (0: the main one)")
 
 
 class Configure(StrictBody):
@@ -154,7 +157,10 @@ def load_rollout(body: LoadRollout, studio: StudioDep) -> dict[str, Any]:
         k: confine(v, roots) if (v := getattr(body, k)) else None
         for k in ("env_config", "agent_config", "engine_config")
     }
-    return roll_out(studio, checkpoint, configs, play=body.play, run_id=body.run_id, run_name=run_name, partner=partner)
+    return roll_out(
+        studio, checkpoint, configs, play=body.play, run_id=body.run_id, run_name=run_name, partner=partner,
+        num_envs=body.num_envs, layout=body.layout,
+    )  # fmt: skip
 
 
 def roll_out(
@@ -166,14 +172,16 @@ def roll_out(
     run_id: int | None = None,
     run_name: str | None = None,
     partner: tuple[Path, int | None, str | None] | None = None,
+    num_envs: int = 1,
+    layout: str = "grid",
 ) -> dict[str, Any]:
     """Show the rollout of `checkpoint` on `configs` (None: the ones beside it); its state. `partner`
-    (checkpoint, run id, run name): B of an A/B rollout, on the configs beside it. A broken checkpoint
-    or config, or two that cannot pair, is a 400 with one line."""
+    (checkpoint, run id, run name): B of an A/B rollout, on the configs beside it; `num_envs` envs drawn
+    as `layout`. A broken checkpoint or config, or two that cannot pair, is a 400 with one line."""
     try:
         source = _source(studio, checkpoint, configs, run_id, run_name, side="A" if partner is not None else "")
         b = _source(studio, partner[0], {}, partner[1], partner[2], side="B") if partner is not None else None
-        snap = studio.load_rollout(source, play=play, partner=b)
+        snap = studio.load_rollout(source, play=play, partner=b, num_envs=num_envs, layout=layout)
     except MimicKitError:
         raise
     except Exception as e:  # noqa: BLE001 - a broken config is the user's to fix: one line, not a traceback
@@ -214,7 +222,7 @@ def rollout_push(body: Push, studio: StudioDep) -> dict[str, Any]:
     `rollout.push.last` is the push given. 400 in one line for an unknown body, a force over the bound or
     not finite, a duration out of bounds."""
     rp = _rollout(studio)
-    rp.push(body.body, body.force, body.duration_s)
+    rp.push(body.body, body.force, body.duration_s, body.env)
     return rp.snapshot()
 
 

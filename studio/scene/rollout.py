@@ -19,6 +19,11 @@ one more step. The state's reward, terms and episode figures are those of the fr
 the live end's). An A/B rollout gives the player a `studio.scene.rollout_pair.RolloutPair`: B steps with A
 (frame i of both histories is one moment), is drawn in a lane behind A, and its figures of the same
 frame are the state's `b` and the history rows' `b`.
+
+A rollout of several envs (`num_envs` up to MAX_ENVS) steps them in one batched env with one policy call;
+env 0 is the one recorded in full and shown by the label, plots and pushes; each other env restarts on
+its own when its episode ends, its qpos and fall mark are kept in the frame and its figures in `tallies`;
+the player draws them on a grid or overlaid (`layout`).
 """
 
 from __future__ import annotations
@@ -65,6 +70,9 @@ PUBLISHED_ROWS = 600  # history rows published with each state (`Playable.feed`)
 # longer or stronger push only flings it out of view.
 MAX_PUSH_N = 5000.0
 MAX_PUSH_S = 2.0  # the longest push, seconds (rounded to whole control steps by the engine)
+MAX_ENVS = 16  # envs of one rollout: the scene thread draws all of them at the control rate on a laptop CPU
+LAYOUTS = ("grid", "overlay")  # how a rollout's envs are drawn (RolloutPlayer)
+FALL_MARK_S = 1.0  # how long an env's figure stays marked after a fall
 
 
 @dataclass
@@ -191,6 +199,8 @@ class Frame:
     body_error: np.ndarray | None = None  # [J] metres, each body's tracking error (Rollout.body_names)
     waiting: bool = False  # an ended episode's last pose, held while an A/B partner still runs
     push: tuple[PushMark, ...] = ()  # the pushes that acted on the character during this step
+    others: np.ndarray | None = None  # [N-1, nq] float32 qpos of envs 1.. of a rollout of several (None: one env)
+    marked: np.ndarray | None = None  # [N] bool: each env fell within FALL_MARK_S before this step
     fall_after_push_s: float | None = None  # a fall (done 1) ending an episode, seconds after its last push
     task: dict[str, float | bool | str] | None = None  # a task env's target at this step (ShowsTaskTarget)
 
@@ -207,6 +217,37 @@ class PushMark:
 
     def to_json(self) -> dict[str, Any]:
         return {"body": self.body, "force": list(self.force), "duration_s": self.duration_s}
+
+
+@dataclass
+class EnvTally:
+    """One env's figures in a rollout of several: what its finished episodes did and where its current
+    one is (env 0's are those of `Rollout.episodes` and the label)."""
+
+    episodes: int = 0  # finished episodes (a user's reset does not finish one)
+    falls: int = 0  # of them, ended by failure (DoneFlags.FAIL)
+    episode_step: int = 0
+    episode_return: float = 0.0
+    return_sum: float = 0.0  # of the finished episodes
+    last_fall_step: int | None = None  # `Rollout.steps` when it last fell
+
+    def end(self, done: int, steps: int) -> None:
+        self.episodes += 1
+        self.return_sum += self.episode_return
+        if done == DoneFlags.FAIL:
+            self.falls += 1
+            self.last_fall_step = steps
+        self.episode_step, self.episode_return = 0, 0.0
+
+    def to_json(self, env: int) -> dict[str, Any]:
+        return {
+            "env": env,
+            "episodes": self.episodes,
+            "falls": self.falls,
+            "episode_step": self.episode_step,
+            "episode_return": round(self.episode_return, 4),
+            "mean_return": round(self.return_sum / self.episodes, 4) if self.episodes else None,
+        }
 
 
 @dataclass
@@ -230,11 +271,16 @@ class EpisodeSummary:
 class Rollout:
     """The policy of `source.checkpoint` in one env (see the module docstring). Not thread-safe."""
 
-    def __init__(self, source: RolloutSource, history_s: float = HISTORY_S) -> None:
+    def __init__(self, source: RolloutSource, history_s: float = HISTORY_S, num_envs: int = 1) -> None:
+        """`num_envs` (1..MAX_ENVS) envs of one batched env, one policy call per step; env 0 is the main
+        one (history, label, plots, pushes), the others are drawn and counted (`tallies`)."""
+        if not 1 <= num_envs <= MAX_ENVS:
+            raise MimicKitError(f"num_envs must be 1 to {MAX_ENVS}, not {num_envs}")
         self.source = source
+        self.num_envs = num_envs
         with collect_warnings():  # dropped, as before; not `catch_warnings`, which swaps every thread's filters
             # MimicKitError (one line) when the checkpoint does not fit
-            self.env, self.agent = load_policy(source.inputs(), source.checkpoint, visualize=True)
+            self.env, self.agent = load_policy(source.inputs(), source.checkpoint, num_envs, visualize=True)
         engine = self.env.engine
         view = engine.mujoco_view(0)  # every engine draws through a MuJoCo model of its scene
         self.model: mujoco.MjModel = view.model
@@ -274,23 +320,32 @@ class Rollout:
         self._push_steps: dict[int, int] = {}  # body id -> control steps of the push given last (its start)
         self._last_push_step: int | None = None  # `steps` when the episode's last push began
         self._clip_start: tuple[torch.Tensor, torch.Tensor] | None = None  # (clip ids, times) of the episode's start
+        self.tallies = [EnvTally() for _ in range(num_envs)]
         self.reset()
+        self.spacing_m = self._spacing()
 
     @property
     def control_freq(self) -> float:
         return 1.0 / self.dt
 
     def reset(self, same_start: bool = False) -> None:
-        """A new episode (the env's own reset: reference-state init from the clip); `same_start`: from the
-        clip state the last episode started from (an env tracking clips), to see one start with and
-        without a push."""
+        """A new episode of every env (the env's own reset: reference-state init from the clip); `same_start`:
+        env 0 from the clip state its last episode started from (an env tracking clips), to see one start
+        with and without a push."""
+        for t in self.tallies:  # cut short by hand, not finished: not counted as an episode
+            t.episode_step, t.episode_return = 0, 0.0
+        self._start_main(same_start, every_env=True)
+
+    def _start_main(self, same_start: bool = False, every_env: bool = False) -> None:
+        """Env 0's next episode (with `every_env`, every env's); its first frame is recorded."""
         tracking = self.env if isinstance(self.env, TracksReference) else None
         if same_start and tracking is not None and self._clip_start is not None:
-            tracking.start_next_resets_at(*self._clip_start)
+            tracking.start_next_resets_at(*self._clip_start)  # taken by the first env reset: env 0
+        ids = None if every_env or self.num_envs == 1 else torch.zeros(1, dtype=torch.long, device=self.env.device)
         with torch.no_grad():
-            self._obs, _ = self.env.reset()
+            self._obs, _ = self.env.reset(ids)
         if tracking is not None:  # right after the reset the clip time is the start's
-            self._clip_start = (tracking.get_motion_ids(), tracking.get_motion_time().clone())
+            self._clip_start = (tracking.get_motion_ids()[:1], tracking.get_motion_time()[:1].clone())
         self.episode += 1
         self.episode_step = 0
         self.episode_return = 0.0
@@ -314,21 +369,30 @@ class Rollout:
             action = self.agent.compute_action(self._obs, deterministic=True)
             obs, reward, done, info = self.env.step(action)
         terms = {k: float(v.reshape(-1)[0]) for k, v in (info.get("reward_terms") or {}).items()}
-        r = float(reward.reshape(-1)[0])
-        d = int(done.reshape(-1)[0])
+        rewards = [float(x) for x in reward.reshape(-1).tolist()]
+        dones = [int(x) for x in done.reshape(-1).tolist()]
+        r, d = rewards[0], dones[0]
         self.steps += 1
         self.episode_step += 1
         self.episode_return += r
-        frame = self._record(r, terms, d, pushes)
+        for i, t in enumerate(self.tallies):
+            t.episode_step += 1
+            t.episode_return += rewards[i]
+            if dones[i]:
+                t.end(dones[i], self.steps)
+        frame = self._record(r, terms, d, pushes)  # the ended envs' last poses, before they restart
+        if not d:
+            self._obs = obs
+        if ended := [i for i in range(1, self.num_envs) if dones[i]]:  # the others restart on their own
+            with torch.no_grad():
+                self._obs, _ = self.env.reset(torch.tensor(ended, dtype=torch.long, device=self.env.device))
         if d:
             summary = EpisodeSummary(self.episode, self.episode_step, self.episode_return, d, frame.fall_after_push_s)
             self.episodes.append(summary)
             if auto_reset:
-                self.reset()
+                self._start_main()
             else:
                 self.ended = d
-        else:
-            self._obs = obs
         return frame
 
     def check_push(self, body: str, force: list[float] | tuple[float, ...], duration_s: float) -> int:
@@ -344,15 +408,22 @@ class Rollout:
             raise MimicKitError(f"duration_s must be above 0 and at most {MAX_PUSH_S:g} s, not {duration_s}")
         return self.push_bodies.index(body)
 
-    def push(self, body: str, force: list[float] | tuple[float, ...], duration_s: float) -> dict[str, Any]:
+    def push(
+        self, body: str, force: list[float] | tuple[float, ...], duration_s: float, env_id: int = 0
+    ) -> dict[str, Any]:
         """Push the character's `body` with `force` (N, world frame, at its centre of mass) over the next
         control steps (`Engine.apply_body_force`: whole steps); it acts from the next simulated step and
-        ends with the episode. Bounds: MAX_PUSH_N, MAX_PUSH_S."""
+        ends with the episode. Bounds: MAX_PUSH_N, MAX_PUSH_S. `env_id`: another env of a rollout of
+        several (only env 0's pushes are recorded in its frames and drawn as arrows)."""
         body_id = self.check_push(body, force, duration_s)
+        if not 0 <= env_id < self.num_envs:
+            raise MimicKitError(f"env must be 0 to {self.num_envs - 1} (the rollout's envs), not {env_id}")
         f = [float(x) for x in force]
-        steps = self.env.engine.apply_body_force(0, self.env.get_char_id(), body_id, f, duration_s=float(duration_s))
-        self._push_steps[body_id] = steps
-        return {"body": body, "force": f, "duration_s": steps * self.dt, "steps": steps}
+        char = self.env.get_char_id()
+        steps = self.env.engine.apply_body_force(env_id, char, body_id, f, duration_s=float(duration_s))
+        if env_id == 0:
+            self._push_steps[body_id] = steps
+        return {"body": body, "force": f, "duration_s": steps * self.dt, "steps": steps, "env": env_id}
 
     def _acting_pushes(self) -> tuple[PushMark, ...]:
         """The character's pushes the next step applies, as recorded marks."""
@@ -424,8 +495,41 @@ class Rollout:
             frame.body_error = self.env.body_pos_errors()[0].cpu().numpy().astype(np.float64)
         if isinstance(self.env, ShowsTaskTarget):  # recorded per frame: scrubbing back shows that step's
             frame.task = self.env.task_target(0)
+        if self.num_envs > 1:
+            self._record_others(frame)
         self.history.append(frame)
         return frame
+
+    def _record_others(self, frame: Frame) -> None:
+        """Envs 1..N-1 of `frame`: their qpos (float32: 16 envs x 60 s stay small) and the fall marks."""
+        engine = self.env.engine
+        frame.others = np.stack([engine.mujoco_view(i).data.qpos for i in range(1, self.num_envs)]).astype(np.float32)
+        window = round(FALL_MARK_S / self.dt)
+        frame.marked = np.array(
+            [t.last_fall_step is not None and self.steps - t.last_fall_step < window for t in self.tallies]
+        )
+
+    def pose_others(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """World xpos [N-1, nbody, 3] and xmat [N-1, nbody, 9] of envs 1.. in a recorded frame (env-local:
+        each env's own world, as the engine simulates it)."""
+        if frame.others is None:
+            return np.zeros((0, self.model.nbody, 3)), np.zeros((0, self.model.nbody, 9))
+        d = self._scratch
+        xpos = np.empty((len(frame.others), self.model.nbody, 3))
+        xmat = np.empty((len(frame.others), self.model.nbody, 9))
+        for k, q in enumerate(frame.others):
+            d.qpos[:] = q
+            mujoco.mj_kinematics(self.model, d)
+            xpos[k], xmat[k] = d.xpos, d.xmat
+        return xpos, xmat
+
+    def _spacing(self) -> float:
+        """The grid's cell (metres) from the character's size: its standing height (body origins of the
+        first pose, plus the largest geom's radius at each end) and 30 % room; about 2 m for the humanoid."""
+        xpos, _ = self.pose(self.history[-1])
+        z = xpos[self.char_bodies, 2]
+        radius = float(self.model.geom_rbound[np.isin(self.model.geom_bodyid, self.char_bodies)].max(initial=0.0))
+        return round(max(1.0, 1.3 * (float(z.max() - z.min()) + 2 * radius)), 1)
 
     def body_error_colours(self, frame: Frame) -> dict[int, float]:
         """{MuJoCo body id of the character: its error in metres} of `frame` (empty without a reference),
@@ -493,11 +597,21 @@ class RolloutPlayer(Playable):
         *,
         play: bool = False,
         pair: Lockstep | None = None,
+        layout: str = "grid",
     ) -> None:
-        """`pair`: an A/B rollout whose A is `rollout`; B is stepped in lockstep and drawn beside it."""
+        """`pair`: an A/B rollout whose A is `rollout`; B is stepped in lockstep and drawn beside it.
+        `layout`: how a rollout of several envs is drawn, "grid" (each env on its cell of a square grid)
+        or "overlay" (all where they are simulated, the others translucent)."""
         super().__init__(owner)
         if pair is not None and pair.a is not rollout:
             raise ValueError("the A/B pair's A must be the rollout shown")
+        if layout not in LAYOUTS:
+            raise MimicKitError(f"layout must be one of {', '.join(LAYOUTS)}, not {layout[:40]!r}")
+        self.layout = layout
+        # Each env's offset from where it is simulated (env-local: all at one origin): grid cells.
+        n = rollout.num_envs
+        self.cells = grid_cells(n, rollout.spacing_m) if layout == "grid" else np.zeros((n, 3))
+        self._at = np.zeros((rollout.num_envs, 3))  # each env's root as drawn in the frame shown (the state)
         self.rollout = rollout
         self.pair = pair
         self.scene = scene
@@ -509,6 +623,8 @@ class RolloutPlayer(Playable):
             # B's character is drawn only by its body meshes (A's also by mjviser): all of them, always.
             b = (pair.b.model, pair.b.ghost_bodies, pair.b.char_bodies) if pair is not None else None
             scene.show_rollout(*_figure(rollout), partner=b)
+            if rollout.num_envs > 1:
+                scene.show_crowd(rollout.model, rollout.char_bodies, self.cells, layout == "overlay", rollout.spacing_m)
             scene.on_body_click(self._clicked)  # a click on one of A's bodies picks it for a push
         now = time.monotonic()
         self._next_t, self._next_poll = now, now + RELOAD_POLL_S
@@ -580,14 +696,14 @@ class RolloutPlayer(Playable):
         (self.pair or self.rollout).close()
 
     @command
-    def push(self, body: str | None, force: list[float], duration_s: float) -> dict[str, Any]:
+    def push(self, body: str | None, force: list[float], duration_s: float, env: int = 0) -> dict[str, Any]:
         """Push `body` of the character (None: the one a click picked, else the root; of both in an A/B
         rollout: the same push, for a fair comparison) from the next simulated step (`Rollout.push`); the
-        view goes to the live end, where it acts."""
+        view goes to the live end, where it acts. `env`: which env of a rollout of several."""
         body = body or self.state.push_body or self.rollout.push_bodies[0]
         for r in self.sides:  # every side accepts it before any is pushed
             r.check_push(body, force, duration_s)
-        given = [r.push(body, force, duration_s) for r in self.sides][0]
+        given = [r.push(body, force, duration_s, env) for r in self.sides][0]
         self.state.last_push = {**given, "at_step": self.rollout.steps + 1}
         self.state.view = None
         self._draw()
@@ -666,6 +782,7 @@ class RolloutPlayer(Playable):
             },
             "b": _side_json(self.pair.b, i) if self.pair is not None else None,  # B at the same frame
             "figures": self.scene.figures() if self.scene is not None else [],  # A/B: both, as drawn
+            "envs": self._envs_json(shown),
             "follow_height": s.height,
             "reward_weights": r.reward_weights,
             "motion_files": r.motion_files,
@@ -686,6 +803,23 @@ class RolloutPlayer(Playable):
                 "reward_terms": shown.terms or {},
                 "episode_return": shown.episode_return,
             },
+        }
+
+    def _envs_json(self, shown: Frame) -> dict[str, Any]:
+        """The rollout's envs: how many, how drawn, and per env its episodes, falls, current episode step,
+        mean return of finished episodes (live figures), where its root is drawn and whether its figure is
+        marked by a recent fall (of the frame shown)."""
+        r = self.rollout
+        marked = shown.marked if shown.marked is not None else np.zeros(r.num_envs, dtype=bool)
+        return {
+            "num_envs": r.num_envs,
+            "layout": self.layout,
+            "spacing_m": r.spacing_m,
+            "drawn": self.scene.crowd() if self.scene is not None else None,  # envs 1.. as the 3D view has them
+            "per_env": [
+                {**t.to_json(i), "at": [round(float(v), 3) for v in self._at[i]], "marked": bool(marked[i])}
+                for i, t in enumerate(r.tallies)
+            ],
         }
 
     def _real_time_factor(self) -> float | None:
@@ -771,6 +905,9 @@ class RolloutPlayer(Playable):
             b_frame = b.history[i]
             partner, partner_errors = b.pose(b_frame), b.body_error_colours(b_frame)
             arrows = np.concatenate([arrows, _push_arrows(b_frame, partner[0] + PAIR_LANE)])
+        self._at[0] = root
+        if r.num_envs > 1:
+            self._draw_others(frame)
         if self.scene is not None:
             self.scene.draw_bodies(xpos, xmat, centre, self.state.follow, self.state.height, partner)
             self.scene.draw_push(arrows)
@@ -778,6 +915,15 @@ class RolloutPlayer(Playable):
         self.state.root_pos = root.astype(float).tolist()
         self.state.updates += 1
         self._changed()
+
+    def _draw_others(self, frame: Frame) -> None:
+        """Envs 1.. of `frame` on their cells (before env 0's draw, whose flush sends them too)."""
+        r = self.rollout
+        xpos, xmat = r.pose_others(frame)
+        xpos += self.cells[1:, None, :]
+        self._at[1:] = xpos[:, r.root_body]
+        if self.scene is not None and frame.marked is not None:
+            self.scene.draw_crowd(xpos, xmat, frame.marked[1:], [t.falls for t in r.tallies])
 
     def _simulate(self) -> None:
         """One simulated step: of the rollout, or of both sides of an A/B pair."""
@@ -837,6 +983,14 @@ class RolloutPlayer(Playable):
             self.rollout.error = f"simulation stopped: {e!r}"
             self._changed()
         self._next_t = max(self._next_t + period, now - period)
+
+
+def grid_cells(n: int, spacing: float) -> np.ndarray:
+    """[n, 3] places of n envs on a square grid `spacing` m apart: env 0 at the origin, the others in
+    rows along -x (env 0's ghost stands at +x) and further rows behind (+y)."""
+    side = int(np.ceil(np.sqrt(n)))
+    i = np.arange(n)
+    return np.stack([-(i % side) * spacing, (i // side) * spacing, np.zeros(n)], axis=1).astype(np.float64)
 
 
 def _push_arrows(frame: Frame, xpos: np.ndarray) -> np.ndarray:

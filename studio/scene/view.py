@@ -50,6 +50,10 @@ ROLLOUT_CAMERA = {"position": (0.5, -3.4, 1.35), "look_at": (0.75, 0.0, 0.7)}
 PAIR_LANE = np.array([0.0, 3.0, 0.0])
 PUSH_COLOR = (0, 200, 255)  # a push's arrow: cyan, apart from the error colours (green to red) and the ghost
 PAIR_CAMERA = {"position": (0.0, -3.3, 3.4), "look_at": (0.0, 1.5, 0.7)}
+# A rollout of several envs: the others' figures (envs 1..) translucent when overlaid on env 0's, and an
+# env's figure red for a while after it fell (studio.scene.rollout.FALL_MARK_S).
+CROWD_OPACITY = 0.35
+FALL_COLOR = (225, 50, 45)
 CLIP_CAMERA = {"position": (2.2, -2.6, 1.5), "look_at": (0.0, 0.0, 0.8)}
 PATH_COLOR = (250, 176, 5)
 CONTACT_COLOR = (60, 220, 120)
@@ -135,6 +139,7 @@ class StudioScene:
         self._error_meshes: list[tuple[int, viser.MeshHandle]] = []  # the character's bodies, by error
         self._error_colours: list[tuple[int, int, int] | None] = []  # the colour each was last sent
         self._partner: _Partner | None = None  # B of an A/B rollout
+        self._crowd: _Crowd | None = None  # envs 1.. of a rollout of several
         self._push_shown = False  # whether push arrows are drawn (see draw_push)
         server.scene.set_up_direction("+z")
         server.scene.world_axes.visible = False
@@ -296,23 +301,100 @@ class StudioScene:
         side colour (until `colour_bodies` sets another)."""
         out = []
         for b in bodies:
-            geoms = [g for g in np.flatnonzero(model.geom_bodyid == b) if model.geom_rgba[g, 3] > 0]
-            if not geoms:
+            geometry = _body_geometry(model, int(b))
+            if geometry is None:
                 continue
-            name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(b)) or ""
-            rgb = color or tuple(round(c * 255) for c in body_color(name.rsplit("/", 1)[-1]))
-            mesh = merge_geoms(model, geoms)
+            vertices, faces, side_rgb = geometry
             handle = self.server.scene.add_mesh_simple(
                 f"{prefix}/b{int(b)}",
-                np.asarray(mesh.vertices, dtype=np.float32),
-                np.asarray(mesh.faces, dtype=np.uint32),
-                color=rgb,
+                vertices,
+                faces,
+                color=color or side_rgb,
                 opacity=opacity,
                 cast_shadow=shadows,
                 receive_shadow=False,
             )
             out.append((int(b), handle))
         return out
+
+    def show_crowd(
+        self, model: mujoco.MjModel, char_bodies: np.ndarray, cells: np.ndarray, overlay: bool, label_z: float = 2.0
+    ) -> None:
+        """Envs 1.. of a rollout of several (after `show_rollout`, which draws env 0): one batched mesh per
+        character body with an instance per env, so a frame sends two messages per body for all envs
+        (one mesh per body and env would be N x bodies). Under /world: positions are world coordinates
+        and follow moves them with the ground. `cells` [N, 3]: each env's place (env 0's first); a grid
+        (`overlay` False) labels each cell `label_z` m up, an overlay draws the others translucent."""
+        with self._lock:
+            k = len(cells) - 1
+            meshes = []
+            for b in np.asarray(char_bodies):
+                geometry = _body_geometry(model, int(b))
+                if geometry is None or k < 1:
+                    continue
+                vertices, faces, rgb = geometry
+                handle = self.server.scene.add_batched_meshes_simple(
+                    f"/world/crowd/b{int(b)}",
+                    vertices,
+                    faces,
+                    batched_wxyzs=np.tile(np.array([1.0, 0.0, 0.0, 0.0], dtype=np.float32), (k, 1)),
+                    batched_positions=np.zeros((k, 3), dtype=np.float32),
+                    batched_colors=np.tile(np.array(rgb, dtype=np.uint8), (k, 1)),
+                    batched_opacities=np.full(k, CROWD_OPACITY, dtype=np.float32) if overlay else None,
+                    lod="off",  # a body is a few hundred triangles; viser's automatic LOD would re-mesh it
+                    cast_shadow=not overlay,
+                    receive_shadow=False,
+                )
+                meshes.append((int(b), handle, np.array(rgb, dtype=np.uint8)))
+            labels = [] if overlay else [
+                self.server.scene.add_label(f"/world/crowd/label_{i}", f"{i}", position=(c[0], c[1], label_z),
+                                            font_screen_scale=0.8)
+                for i, c in enumerate(np.asarray(cells))
+            ]  # fmt: skip
+            self._crowd = _Crowd(meshes, labels, np.zeros(k, dtype=bool), [-1] * len(labels))
+            if not overlay:
+                self._set_camera(_grid_camera(np.asarray(cells)), clients=True)
+
+    def draw_crowd(self, xpos: np.ndarray, xmat: np.ndarray, marked: np.ndarray, falls: list[int]) -> None:
+        """Pose envs 1..'s figures: xpos [K, nbody, 3] (world, their cells added), xmat [K, nbody, 9];
+        `marked` [K]: drawn red (a recent fall); `falls` [N]: each env's falls, on the grid's labels."""
+        with self._lock:
+            c = self._crowd
+            if c is None or self.mode != "rollout":
+                return
+            quat = np.zeros(4)
+            recolour = not np.array_equal(marked, c.marked)
+            with self.server.atomic():
+                for b, h, rgb in c.meshes:
+                    wxyz = np.empty((len(xmat), 4), dtype=np.float32)
+                    for j in range(len(xmat)):
+                        mujoco.mju_mat2Quat(quat, xmat[j, b])
+                        wxyz[j] = quat
+                    h.batched_positions = xpos[:, b].astype(np.float32)
+                    h.batched_wxyzs = wxyz
+                    if recolour:
+                        h.batched_colors = np.where(marked[:, None], np.array(FALL_COLOR, dtype=np.uint8), rgb)
+                for i, label in enumerate(c.labels):
+                    if falls[i] != c.falls[i]:  # sent only when it changes
+                        label.text = f"{i}: {falls[i]} fall{'s' if falls[i] != 1 else ''}"
+                        c.falls[i] = falls[i]
+            c.marked = np.asarray(marked, dtype=bool).copy()
+
+    def crowd(self) -> dict[str, object] | None:
+        """What is drawn of envs 1.. (None: one env): the body meshes, and per env its root's place and
+        whether it is marked red, read from the mesh handles (the first is the root's)."""
+        with self._lock:
+            c = self._crowd
+            if c is None or not c.meshes:
+                return None
+            root = c.meshes[0][1]
+            red = np.all(np.asarray(root.batched_colors) == np.array(FALL_COLOR), axis=1)
+            return {
+                "bodies": len(c.meshes),
+                "at": [[round(float(v), 3) for v in p] for p in np.asarray(root.batched_positions)],
+                "red": [bool(x) for x in red],
+                "labels": [label.text for label in c.labels],
+            }
 
     def on_body_click(self, callback: Callable[[int], None]) -> None:
         """Call `callback(MuJoCo body id)` (on viser's thread pool) when one of the rollout character's
@@ -430,6 +512,8 @@ class StudioScene:
             h.remove()
         self._ghost, self._error_meshes, self._error_colours = [], [], []
         self._partner = None
+        self._crowd = None
+        self.server.scene.remove_by_name("/world/crowd")
         self.server.scene.remove_by_name("/ghost")
         self.server.scene.remove_by_name("/error_bodies")
         self.server.scene.remove_by_name("/b")
@@ -457,6 +541,38 @@ class _Partner:
     bodies: list[tuple[int, viser.MeshHandle]]
     labels: list[viser.LabelHandle]
     colours: list[tuple[int, int, int] | None] = field(default_factory=list)
+
+
+@dataclass
+class _Crowd:
+    """Envs 1.. of a rollout of several: (body id, batched mesh, side colour) per character body, a label
+    per grid cell, and what was sent last (fall marks, label counts)."""
+
+    meshes: list[tuple[int, viser.BatchedMeshHandle, np.ndarray]]
+    labels: list[viser.LabelHandle]
+    marked: np.ndarray
+    falls: list[int]
+
+
+def _body_geometry(model: mujoco.MjModel, body: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]] | None:
+    """Body `body`'s visible geoms merged in its frame: vertices, faces and its side colour (None: no visible geom)."""
+    geoms = [g for g in np.flatnonzero(model.geom_bodyid == body) if model.geom_rgba[g, 3] > 0]
+    if not geoms:
+        return None
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, body) or ""
+    rgb = tuple(round(c * 255) for c in body_color(name.rsplit("/", 1)[-1]))
+    mesh = merge_geoms(model, geoms)
+    vertices = np.asarray(mesh.vertices, dtype=np.float32)
+    return vertices, np.asarray(mesh.faces, dtype=np.uint32), rgb  # type: ignore[return-value]
+
+
+def _grid_camera(cells: np.ndarray) -> dict[str, tuple[float, float, float]]:
+    """A camera that sees a grid of envs' cells [N, 3] (and env 0's ghost beside its cell) from the front, higher
+    and further back the larger the grid."""
+    lo, hi = cells[:, :2].min(axis=0), cells[:, :2].max(axis=0)
+    cx, cy = (lo[0] + hi[0] + 2.0) / 2, (lo[1] + hi[1]) / 2
+    extent = float(max(hi - lo)) + 2.0
+    return {"position": (cx, lo[1] - 0.8 * extent - 1.2, 0.6 * extent + 1.2), "look_at": (cx, cy, 0.5)}
 
 
 def _label_at(pos: np.ndarray) -> np.ndarray:
