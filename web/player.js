@@ -119,15 +119,21 @@ export async function loadRollout(body) {
 // shown and its reward terms.
 // A task env's target (ShowsTaskTarget): where it is and how far the character is from it.
 function taskText(t) {
-  if (!t) return "";
   if (t.kind === "location") {
-    return ` · target (${t.x.toFixed(1)}, ${t.y.toFixed(1)}) ${t.distance_m.toFixed(2)} m away${t.reached ? ", reached" : ""}`;
+    return `target (${t.x.toFixed(1)}, ${t.y.toFixed(1)}) ${t.distance_m.toFixed(2)} m away${t.reached ? ", reached" : ""}`;
   }
   if (t.kind === "steering") {
-    return ` · target heading ${t.heading_deg.toFixed(0)}° at ${t.speed_mps.toFixed(2)} m/s` +
+    return `target heading ${t.heading_deg.toFixed(0)}° at ${t.speed_mps.toFixed(2)} m/s` +
       ` (now ${t.speed_along_mps.toFixed(2)} m/s along it), facing ${t.facing_deg.toFixed(0)}°`;
   }
-  return ` · target ${JSON.stringify(t)}`;
+  return `target ${JSON.stringify(t)}`;
+}
+
+// Its own line under the label (the label is cut to one line): A's target, and B's beside it.
+function showTask(r, b) {
+  const parts = [r, b].filter((s) => s && s.task).map((s) => taskText(s.task));
+  $("rollout-task").hidden = !parts.length;
+  $("rollout-task").textContent = b ? parts.map((p, k) => `${"AB"[k]}: ${p}`).join(" · ") : parts.join("");
 }
 
 function sideLabel(r, side) {
@@ -138,7 +144,7 @@ function sideLabel(r, side) {
   const terms = Object.entries(r.reward_terms).map(([k, v]) => `${k} ${v.toFixed(2)}`).join(" · ");
   return `${side ? `${side}: ` : ""}${who} · ${trained} · file saved ${saved}${r.reloads ? ` (reloaded ${r.reloads}×)` : ""}` +
     ` · episode ${r.episode} · return ${r.episode_return.toFixed(2)}${r.waiting ? " · ended, waiting for the other" : ""}` +
-    `${taskText(r.task)}${terms ? ` · ${terms}` : ""}${r.error ? ` · ${r.error}` : ""}`;
+    `${terms ? ` · ${terms}` : ""}${r.error ? ` · ${r.error}` : ""}`;
 }
 
 const plotOptions = (title) => ({
@@ -163,6 +169,7 @@ export const rolloutView = {
     for (const id of ["rollout-b", "rollout-b-bar"]) $(id).hidden = !b;
     $("rollout-panel").classList.toggle("ab", !!b);  // the two plots side by side, no error bars
     $("rollout-label").textContent = sideLabel(r, b ? "A" : "");
+    showTask(r, b);
     $("clip-label").textContent = b
       ? `A/B: ${r.checkpoint.split("/").slice(-2).join("/")} (front) and ${b.checkpoint.split("/").slice(-2).join("/")} (behind), each episode from the same clip start`
       : `rollout of ${r.checkpoint.split("/").slice(-2).join("/")} in ${r.env_config.split("/").pop()} (ghost: the reference clip)`;

@@ -1,11 +1,13 @@
 """A task env's target in the studio's rollout (issue 37, method-aware views): the AMP location and steering
 envs declare `ShowsTaskTarget`, each recorded frame carries env 0's target, the rollout state gives the
 target of the frame shown, the 3D view draws the env's marker where the target is, and the page's label says
-it. Checkpoints come from the real trainer (one tiny iteration of each arg file, MimicKit's clips)."""
+it. Checkpoints come from the real trainer (one tiny iteration of each arg file, MimicKit's clips).
+STUDIO_UPDATE_SCREENSHOTS=1 writes docs/studio_task_target.png (1280×720)."""
 
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -19,6 +21,7 @@ from mimickit.envs.viewable import ShowsTaskTarget
 from mimickit.util.paths import PROJECT_ROOT
 from studio.scene.rollout import Rollout, source_for_checkpoint
 from tests.studio.conftest import CHROMIUM, StudioProcess, scene_page, wait_for
+from tests.studio.test_e2e_browser import HIDE_TOAST
 
 pytestmark = pytest.mark.integration
 ARGS = {"location": "args/amp_location_humanoid_cpu_args.txt", "steering": "args/amp_steering_humanoid_args.txt"}
@@ -93,9 +96,12 @@ def test_the_page_labels_a_task_rollout_with_its_target(runs: dict[str, Path], t
         assert r.status_code == 200, r.text
         s = wait_for(lambda: (st := server.get("/api/scene/state").json())["rollout"]["task"] and st, 60, "a target")
         assert s["rollout"]["task"]["kind"] == "location"
-        label = page.locator("#rollout-label")
+        label = page.locator("#rollout-task")
         wait_for(lambda: "m away" in label.inner_text(), 60, lambda: f"the target in {label.inner_text()!r}", page)
-        assert "target (" in label.inner_text()
+        assert label.inner_text().startswith("target (")
+        if os.environ.get("STUDIO_UPDATE_SCREENSHOTS") == "1":  # the marker and the label, docs/studio.md
+            page.locator("#scene").element_handle().content_frame().add_style_tag(content=HIDE_TOAST)
+            page.screenshot(path=str(PROJECT_ROOT / "docs" / "studio_task_target.png"))
         page.close()
     finally:
         server.stop()
