@@ -13,8 +13,9 @@ from mimickit.util.paths import PROJECT_DATA_DIR
 
 ENGINE = PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml"
 DEEPMIMIC = PROJECT_DATA_DIR / "envs" / "deepmimic_humanoid_env.yaml"
-TRACKING = {"deepmimic", "amp", "add", "ase", "task_location", "task_steering"}
-POSE_TRACKING = {"deepmimic", "add"}  # rewarded for the reference's pose at each step; AMP's are for its style
+TRACKING = {"deepmimic", "static_objects", "amp", "add", "ase", "task_location", "task_steering"}
+# Rewarded for the reference's pose at each step; AMP's are for its style.
+POSE_TRACKING = {"deepmimic", "static_objects", "add"}
 
 
 @pytest.mark.parametrize("name", ENVS.names)
