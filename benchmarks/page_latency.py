@@ -159,7 +159,7 @@ def main() -> None:
         print_summary("click to visible change", click_latency(base, args.clicks, qualities, args.rounds, args.token))
         return
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from benchmarks.studio_bench import studio_server
+    from benchmarks.studio_server import studio_server
 
     with studio_server(argparse.Namespace(url=None, data_dir=None, server_pid=None)) as (base, _):
         print_summary("click to visible change", click_latency(base, args.clicks, qualities, args.rounds))

@@ -39,14 +39,8 @@ import argparse
 import asyncio
 import json
 import os
-import shlex
-import signal
-import subprocess
 import sys
-import tempfile
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
@@ -61,7 +55,8 @@ import zstandard
 from studio.settings import is_loopback
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks.page_latency import click_latency, print_summary, summary  # noqa: E402 - a sibling script
+from benchmarks.page_latency import click_latency, print_summary, summary  # noqa: E402 - sibling scripts
+from benchmarks.studio_server import background, studio_server  # noqa: E402
 
 ENDPOINTS = ["/api/health", "/api/scene/state", "/api/runs", "/api/motions"]
 DEMO_ROLLOUT = {
@@ -71,42 +66,6 @@ DEMO_ROLLOUT = {
     "engine_config": "data/engines/mujoco_engine.yaml",
 }
 CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-@contextmanager
-def studio_server(args: argparse.Namespace) -> Iterator[tuple[str, int | None]]:
-    """The URL and pid (None if unknown) of a server: the one given, or one started here for the run."""
-    if args.url:
-        yield args.url.rstrip("/") + "/", args.server_pid
-        return
-    runs_dir = tempfile.mkdtemp(prefix="studio_bench_")
-    argv = [sys.executable, "-m", "studio.cli", "serve", "--port", "0", "--runs-dir", runs_dir]
-    if args.data_dir:
-        argv += ["--data-dir", args.data_dir]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
-    try:
-        line = proc.stdout.readline()
-        if "http://" not in line:
-            raise SystemExit(f"the studio did not start: {line!r}")
-        yield line.split()[-1], proc.pid
-    finally:
-        proc.send_signal(signal.SIGINT)
-        proc.wait(20)
-
-
-@contextmanager
-def background(cmd: str | None) -> Iterator[None]:
-    """Run `cmd` (its own process group) for the duration of the block."""
-    if not cmd:
-        yield
-        return
-    proc = subprocess.Popen(shlex.split(cmd), start_new_session=True, stdout=subprocess.DEVNULL)
-    try:
-        time.sleep(2.0)  # let it get past its start-up
-        yield
-    finally:
-        os.killpg(proc.pid, signal.SIGTERM)
-        proc.wait(60)
 
 
 async def count_delivered_poses(base: str, seconds: float) -> tuple[int, int, float]:
