@@ -52,7 +52,7 @@ function showControls(s) {
 
 // What a command will make of the controls, shown at the click: the page does not wait for the server
 // (whose answer, queued behind the 3D view's frames, took seconds) to show a pause or a step. The server
-// decides; its answer replaces the guess. Rules as the players' (studio/scene/player.py, rollout.py).
+// decides; its answer replaces the guess. The rules are the server's players' (the clip's and the rollout's).
 function predict(s, path, body) {
   if (!s || !s.num_frames) return null;
   const p = { ...s };
