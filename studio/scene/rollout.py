@@ -31,6 +31,7 @@ from __future__ import annotations
 import functools
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
@@ -70,6 +71,11 @@ PUBLISHED_ROWS = 600  # history rows published with each state (`Playable.feed`)
 # longer or stronger push only flings it out of view.
 MAX_PUSH_N = 5000.0
 MAX_PUSH_S = 2.0  # the longest push, seconds (rounded to whole control steps by the engine)
+# A drag on a body in the 3D view pulls it like a spring (MuJoCo's viewer perturbation): this many N per
+# metre of pull per kg of the character (a 1 m pull: 540 N on the 45 kg humanoid), each update a push of
+# DRAG_PUSH_S, so the pull acts while the drag lasts (viser sends ~20 updates/s) and ends soon after it.
+DRAG_N_PER_M_KG = 12.0
+DRAG_PUSH_S = 0.1
 MAX_ENVS = 16  # envs of one rollout: the scene thread draws all of them at the control rate on a laptop CPU
 LAYOUTS = ("grid", "overlay")  # how a rollout's envs are drawn (RolloutPlayer)
 FALL_MARK_S = 1.0  # how long an env's figure stays marked after a fall
@@ -625,7 +631,7 @@ class RolloutPlayer(Playable):
             scene.show_rollout(*_figure(rollout), partner=b)
             if rollout.num_envs > 1:
                 scene.show_crowd(rollout.model, rollout.char_bodies, self.cells, layout == "overlay", rollout.spacing_m)
-            scene.on_body_click(self._clicked)  # a click on one of A's bodies picks it for a push
+            scene.on_body_click(self._clicked, self._dragged)  # a click on A's body picks it, a drag pulls it
         now = time.monotonic()
         self._next_t, self._next_poll = now, now + RELOAD_POLL_S
         self._draw()
@@ -718,12 +724,33 @@ class RolloutPlayer(Playable):
             self.state.push_body = r.push_bodies[int(hit[0])]
             self._changed()
 
+    @command
+    def drag(self, view_body: int, pull: np.ndarray | None) -> None:
+        """A drag in the 3D view on A's body `view_body` by `pull` [3] metres (world; None: released):
+        picks the body and pushes it with a spring's force (DRAG_N_PER_M_KG) for DRAG_PUSH_S."""
+        self.pick(view_body)
+        if pull is None or view_body not in self.rollout.char_bodies:
+            return
+        mass = float(self.rollout.model.body_mass[self.rollout.char_bodies].sum())
+        force = DRAG_N_PER_M_KG * mass * np.asarray(pull, dtype=np.float64)
+        norm = float(np.linalg.norm(force))
+        if norm > MAX_PUSH_N:
+            force *= MAX_PUSH_N / norm
+        if norm > 0:
+            self.push(self.state.push_body, force.tolist(), DRAG_PUSH_S)
+
     def _clicked(self, view_body: int) -> None:
         """viser's callback (its thread pool): queued for the scene thread, not waited for."""
+        self._from_viser(self.pick, view_body)
+
+    def _dragged(self, view_body: int, pull: np.ndarray | None) -> None:
+        self._from_viser(self.drag, view_body, pull)
+
+    def _from_viser(self, command: Callable[..., Any], *args: Any) -> None:
         if self.owner is None:
-            self.pick(view_body)
+            command(*args)
         else:
-            self.owner.submit(self.pick, view_body)
+            self.owner.submit(command, *args)
 
     @property
     def sides(self) -> tuple[Rollout, ...]:

@@ -396,14 +396,21 @@ class StudioScene:
                 "labels": [label.text for label in c.labels],
             }
 
-    def on_body_click(self, callback: Callable[[int], None]) -> None:
-        """Call `callback(MuJoCo body id)` (on viser's thread pool) when one of the rollout character's
-        bodies is clicked in the 3D view: the bodies drawn one mesh each (`show_rollout`'s `error_bodies`;
-        an env without them has nothing to click). A click, not a drag: viser reports no drag on a node,
-        and its rectangle select gives the box's corners, not which way it was drawn."""
+    def on_body_click(self, clicked: Callable[[int], None], dragged: Callable[[int, np.ndarray | None], None]) -> None:
+        """Call `clicked(MuJoCo body id)` (on viser's thread pool) when one of the rollout character's
+        bodies is clicked in the 3D view, and `dragged(body id, pull)` while one is dragged: `pull` [3] is
+        the world vector from the grabbed point to the pointer on viser's camera-aligned drag plane (about
+        20 updates a second), None at release. Only the bodies drawn one mesh each (`show_rollout`'s
+        `error_bodies`; an env without them has nothing to click)."""
+
+        def drag(event: viser.SceneNodeDragEvent, b: int) -> None:
+            pull = np.subtract(event.end_position, event.start_position) if event.phase != "end" else None
+            dragged(b, pull)
+
         with self._lock:
             for b, h in self._error_meshes:
-                h.on_click(lambda _event, b=b: callback(b))
+                h.on_click(lambda _event, b=b: clicked(b))
+                h.on_drag(lambda event, b=b: drag(event, b))
 
     def draw_push(self, arrows: np.ndarray) -> None:
         """Draw the pushes acting now: `arrows` [P, 2, 3] (tail, head) in the rollout model's world; none

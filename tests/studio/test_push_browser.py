@@ -1,7 +1,8 @@
 """The rollout panel's Push control in real Chromium (Playwright, the apt browser): load the shipped demo
 model's rollout, pick a direction and a strength, press *Push*: the push is recorded (the state's last
 push, the panel's status line) and the reward plot marks it; a shove that throws the character shows the
-fall after it (status line, a second marker). No fixed sleeps: every check waits on its outcome.
+fall after it (status line, a second marker). A drag on a body in the 3D view pulls it toward the
+pointer, and the other way when dragged back. No fixed sleeps: every check waits on its outcome.
 STUDIO_UPDATE_SCREENSHOTS=1 writes the view with the push's arrow to docs/studio_push.png (1280×720)."""
 
 from __future__ import annotations
@@ -87,6 +88,60 @@ def test_push_from_the_panel_is_recorded_and_marked(page, server: StudioProcess,
         server.post("/api/scene/seek", {"time": (last["at_step"] + 2) * dt})
         wait_for(lambda: arrow_share(page) > 1e-4, WAIT_S, "the arrow again", page=page)
         page.screenshot(path=str(shot))
+    finally:
+        server.post("/api/scene/rollout/close")
+    page.locator("#rollout-panel").wait_for(state="hidden", timeout=WAIT_S * 1000)
+    assert page.errors == []
+
+
+def character_point(page) -> tuple[float, float] | None:
+    """A page point on the character's body: of the 3D view's warm pixels (the bodies' sand, orange and
+    red; not the ghost's green, the grid's grey-blue or the labels' white), the one nearest their middle;
+    None before the character is drawn."""
+    box = page.locator("#scene").bounding_box()
+    rgb = np.asarray(Image.open(io.BytesIO(page.locator("#scene").screenshot())).convert("RGB"), dtype=np.int32)
+    r, b = rgb[..., 0], rgb[..., 2]
+    ys, xs = np.nonzero((r > 140) & (r - b > 50))
+    if len(xs) < 50:
+        return None
+    i = int(np.argmin(np.hypot(xs - xs.mean(), ys - ys.mean())))
+    sx, sy = box["width"] / rgb.shape[1], box["height"] / rgb.shape[0]
+    return box["x"] + xs[i] * sx, box["y"] + ys[i] * sy
+
+
+def drag(page, at: tuple[float, float], dx: float) -> None:
+    """Press on `at`, move `dx` px sideways over about a second, release."""
+    page.mouse.move(*at)
+    page.mouse.down()
+    page.mouse.move(at[0] + dx, at[1], steps=20)
+    for _ in range(5):  # held: viser sends its drag updates (~20/s) while the pointer moves
+        page.mouse.move(at[0] + dx, at[1] + 1, steps=2)
+        page.mouse.move(at[0] + dx, at[1], steps=2)
+    page.mouse.up()
+
+
+def test_a_drag_on_a_body_pulls_it_toward_the_pointer(page, server: StudioProcess) -> None:
+    r = server.post("/api/scene/load_rollout", {**DEMO, "play": False})  # paused: the figure holds still
+    assert r.status_code == 200, r.text
+    bodies = r.json()["rollout"]["push"]["bodies"]
+    try:
+        server.post("/api/scene/step", {"frames": 20})
+        page.locator("#push-bar").wait_for(state="visible", timeout=WAIT_S * 1000)
+        page.locator("#scene").element_handle().content_frame().add_style_tag(content=HIDE_TOAST)
+        at = wait_for(lambda: character_point(page), WAIT_S, "the character drawn", page=page)
+
+        def last() -> dict | None:
+            return server.get("/api/scene/state").json()["rollout"]["push"]["last"]
+
+        drag(page, at, 120)
+        right = wait_for(last, WAIT_S, "a pull from the drag", page=page)
+        assert right["body"] in bodies and right["steps"] == 3, right  # DRAG_PUSH_S: 0.1 s at 30 Hz
+        f = np.asarray(right["force"])
+        assert 1.0 < np.linalg.norm(f) <= 5000 and abs(f[2]) < np.linalg.norm(f[:2]), f  # a sideways drag
+        assert page.locator("#push-body").input_value() == right["body"]  # the dragged body is picked
+
+        drag(page, at, -120)  # the other way: the pull turns round
+        wait_for(lambda: np.dot(last()["force"], f) < 0, WAIT_S, "the pull the other way", page=page)
     finally:
         server.post("/api/scene/rollout/close")
     page.locator("#rollout-panel").wait_for(state="hidden", timeout=WAIT_S * 1000)
