@@ -207,6 +207,7 @@ class Frame:
     push: tuple[PushMark, ...] = ()  # the pushes that acted on the character during this step
     others: np.ndarray | None = None  # [N-1, nq] float32 qpos of envs 1.. of a rollout of several (None: one env)
     marked: np.ndarray | None = None  # [N] bool: each env fell within FALL_MARK_S before this step
+    tallies: np.ndarray | None = None  # [N, 5] each env's `EnvTally.row` after this step (scrubbing back shows them)
     fall_after_push_s: float | None = None  # a fall (done 1) ending an episode, seconds after its last push
     task: dict[str, float | bool | str] | None = None  # a task env's target at this step (ShowsTaskTarget)
 
@@ -245,14 +246,21 @@ class EnvTally:
             self.last_fall_step = steps
         self.episode_step, self.episode_return = 0, 0.0
 
-    def to_json(self, env: int) -> dict[str, Any]:
+    def row(self) -> tuple[int, int, int, float, float]:
+        """The figures as of now, as a frame records them (`Frame.tallies`)."""
+        return self.episodes, self.falls, self.episode_step, self.episode_return, self.return_sum
+
+    @staticmethod
+    def row_json(env: int, row: Any) -> dict[str, Any]:
+        """One env's figures for the scene state from a `row` (live or a recorded frame's)."""
+        episodes, falls, episode_step, episode_return, return_sum = row
         return {
             "env": env,
-            "episodes": self.episodes,
-            "falls": self.falls,
-            "episode_step": self.episode_step,
-            "episode_return": round(self.episode_return, 4),
-            "mean_return": round(self.return_sum / self.episodes, 4) if self.episodes else None,
+            "episodes": int(episodes),
+            "falls": int(falls),
+            "episode_step": int(episode_step),
+            "episode_return": round(float(episode_return), 4),
+            "mean_return": round(float(return_sum) / episodes, 4) if episodes else None,
         }
 
 
@@ -507,13 +515,15 @@ class Rollout:
         return frame
 
     def _record_others(self, frame: Frame) -> None:
-        """Envs 1..N-1 of `frame`: their qpos (float32: 16 envs x 60 s stay small) and the fall marks."""
+        """Envs 1..N-1 of `frame`: their qpos (float32: 16 envs x 60 s stay small), the fall marks and every
+        env's tally."""
         engine = self.env.engine
         frame.others = np.stack([engine.mujoco_view(i).data.qpos for i in range(1, self.num_envs)]).astype(np.float32)
         window = round(FALL_MARK_S / self.dt)
         frame.marked = np.array(
             [t.last_fall_step is not None and self.steps - t.last_fall_step < window for t in self.tallies]
         )
+        frame.tallies = np.array([t.row() for t in self.tallies], dtype=np.float64)
 
     def pose_others(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         """World xpos [N-1, nbody, 3] and xmat [N-1, nbody, 9] of envs 1.. in a recorded frame (env-local:
@@ -834,18 +844,19 @@ class RolloutPlayer(Playable):
 
     def _envs_json(self, shown: Frame) -> dict[str, Any]:
         """The rollout's envs: how many, how drawn, and per env its episodes, falls, current episode step,
-        mean return of finished episodes (live figures), where its root is drawn and whether its figure is
-        marked by a recent fall (of the frame shown)."""
+        mean return of finished episodes, where its root is drawn and whether its figure is marked by a
+        recent fall: all as of the frame shown."""
         r = self.rollout
         marked = shown.marked if shown.marked is not None else np.zeros(r.num_envs, dtype=bool)
+        rows = shown.tallies if shown.tallies is not None else [t.row() for t in r.tallies]
         return {
             "num_envs": r.num_envs,
             "layout": self.layout,
             "spacing_m": r.spacing_m,
             "drawn": self.scene.crowd() if self.scene is not None else None,  # envs 1.. as the 3D view has them
             "per_env": [
-                {**t.to_json(i), "at": [round(float(v), 3) for v in self._at[i]], "marked": bool(marked[i])}
-                for i, t in enumerate(r.tallies)
+                {**EnvTally.row_json(i, row), "at": [round(float(v), 3) for v in at], "marked": bool(m)}
+                for i, (row, at, m) in enumerate(zip(rows, self._at, marked, strict=True))
             ],
         }
 
@@ -950,7 +961,8 @@ class RolloutPlayer(Playable):
         xpos += self.cells[1:, None, :]
         self._at[1:] = xpos[:, r.root_body]
         if self.scene is not None and frame.marked is not None:
-            self.scene.draw_crowd(xpos, xmat, frame.marked[1:], [t.falls for t in r.tallies])
+            falls = frame.tallies[:, 1] if frame.tallies is not None else [t.falls for t in r.tallies]
+            self.scene.draw_crowd(xpos, xmat, frame.marked[1:], [int(f) for f in falls])
 
     def _simulate(self) -> None:
         """One simulated step: of the rollout, or of both sides of an A/B pair."""

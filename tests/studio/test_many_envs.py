@@ -1,7 +1,8 @@
 """A rollout of several envs through the real server: the shipped demo policy in 4 envs of one batched
 env, drawn on a grid (the scene's batched figures at their cells), each env stepping from its own start,
 a fall of one env (pushed hard through `POST /api/scene/rollout/push {env}`) counted for that env alone
-and marked red in the 3D view, the overlay layout, and bad `num_envs` / `layout` / A/B refused in one line."""
+and marked red in the 3D view, scrubbing back showing each env's figures of the frame shown, the overlay
+layout, and bad `num_envs` / `layout` / A/B refused in one line."""
 
 from __future__ import annotations
 
@@ -64,6 +65,17 @@ def test_four_envs_on_a_grid_step_and_count_their_falls(studio: StudioProcess) -
         assert not later["per_env"][2]["marked"] and later["drawn"]["red"] == [False, False, False]
         assert later["per_env"][2]["episode_step"] > 0  # it restarted on its own
         assert later["per_env"][0]["episode_step"] == fell["per_env"][0]["episode_step"] + 45  # env 0 went on
+
+        # Scrubbing back shows each env's figures as of the frame shown, not the live ones.
+        back = studio.post("/api/scene/seek", {"time": 20 / 30}).json()["rollout"]["envs"]
+        assert [(e["episode_step"], e["episodes"], e["falls"]) for e in back["per_env"]] == [(20, 0, 0)] * 4
+        assert back["drawn"]["labels"] == [f"{i}: 0 falls" for i in range(4)]
+        assert [round(e["episode_return"], 4) for e in back["per_env"]] == [
+            round(e["episode_return"], 4) for e in per_env
+        ]
+        fell_step = fell["per_env"][0]["episode_step"]
+        again = studio.post("/api/scene/seek", {"time": fell_step / 30}).json()["rollout"]["envs"]
+        assert [e["falls"] for e in again["per_env"]] == [0, 0, 1, 0] and again["drawn"]["labels"][2] == "2: 1 fall"
     finally:
         studio.post("/api/scene/rollout/close")
 
