@@ -180,6 +180,20 @@ def _video(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train_prior(args: argparse.Namespace) -> int:
+    from mimickit.tools.train_prior import train_prior
+
+    train_prior(
+        args.config,
+        args.out_dir,
+        DataPaths(args.data_dir),
+        max_iterations=args.max_iterations,
+        device=args.device,
+        seed=args.seed,
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mimickit", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -191,6 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sim2sim_parser(sub)
     _add_plot_parser(sub)
     _add_video_parser(sub)
+    _add_train_prior_parser(sub)
 
     from mimickit.tools.evaluate import add_eval_parser
     from mimickit.tools.onnx_export import add_export_parser
@@ -321,6 +336,18 @@ def _add_video_parser(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--rand_seed", type=int, default=0, help="seed of the policy episode (start time in the clip)")
     video.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
     video.set_defaults(func=_video)
+
+
+def _add_train_prior_parser(sub: argparse._SubParsersAction) -> None:
+    """`mimickit train-prior`."""
+    prior = sub.add_parser("train-prior", help="train an SMP motion prior (TinyMDM) on clips; needs the smp extra")
+    prior.add_argument("--config", required=True, help="prior yaml, e.g. data/priors/tinymdm_single_clip.yaml")
+    prior.add_argument("--out_dir", required=True, help="folder for model.pt, diffusion_config.yaml, env_config.yaml")
+    prior.add_argument("--data_dir", help="a MimicKit data folder for data/... paths")
+    prior.add_argument("--max_iterations", type=int, help="stop after this many iterations (at most the config's)")
+    prior.add_argument("--device", help="torch device, replacing the config's (e.g. cpu, cuda:0)")
+    prior.add_argument("--seed", type=int, help="torch seed (default: not seeded)")
+    prior.set_defaults(func=_train_prior)
 
 
 def main(argv: list[str] | None = None) -> int:
