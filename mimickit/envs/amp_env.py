@@ -28,7 +28,7 @@ from mimickit.util import torch_util as tu
 DiscRewardFn = Callable[[torch.Tensor], torch.Tensor]
 """disc obs [n, disc_obs_dim] → unweighted discriminator reward [n]."""
 
-_HIST_KEYS = ("root_pos", "root_rot", "root_vel", "root_ang_vel", "joint_rot", "dof_vel", "body_pos")
+DISC_HIST_KEYS = ("root_pos", "root_rot", "root_vel", "root_ang_vel", "joint_rot", "dof_vel", "body_pos")
 
 
 class AMPEnv(DeepMimicEnv):
@@ -96,7 +96,7 @@ class AMPEnv(DeepMimicEnv):
         """Shift every history one step back and append the character's live state as the newest."""
         state = self._char_state()
         state["body_pos"] = state["body_pos"][:, self._disc_body_ids]
-        for k in _HIST_KEYS:
+        for k in DISC_HIST_KEYS:
             buf = self._disc_hist[k]
             buf[:, :-1] = buf[:, 1:].clone()
             buf[:, -1] = state[k]
@@ -104,7 +104,7 @@ class AMPEnv(DeepMimicEnv):
     def _reset_disc_hist(self, env_ids: torch.Tensor) -> None:
         """The history of reset envs is the clip leading up to their reset time (not the init pose)."""
         hist = self._motion_history(self._motion_ids[env_ids], self.get_motion_time(env_ids))
-        for k in _HIST_KEYS:
+        for k in DISC_HIST_KEYS:
             self._disc_hist[k][env_ids] = hist[k]
 
     def _disc_obs_from_hist(self, hist: dict[str, torch.Tensor]) -> torch.Tensor:

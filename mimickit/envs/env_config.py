@@ -131,6 +131,43 @@ class TaskSteeringEnvConfig(AMPEnvConfig):
     reward_steering_vel_scale: float
 
 
+class SMPEnvConfig(AMPEnvConfig):
+    """AMP's fields: SMP changes the agent (a motion prior's reward) and, with GSI, where resets start."""
+
+
+MAX_PROJECTILES = 16
+
+
+class TaskDodgeballEnvConfig(SMPEnvConfig):
+    """SMP + dodge balls thrown at `proj_target_body` (the reference's `task_dodgeball` fields and defaults).
+
+    Each projectile is launched when its trigger time comes (U[proj_trigger_time_min, max] s after the
+    previous launch or the reset) from proj_dist m away (xy) at height proj_h m and speed proj_speed m/s."""
+
+    proj_target_body: str
+    num_projectiles: int = Field(1, ge=1, le=MAX_PROJECTILES)
+    hit_dist: float = Field(0.8, gt=0, description="m: a ball this close to a body may count as a hit")
+    hit_force_threshold: float = Field(0.1, ge=0, description="N: xy contact force on a ball that counts as a hit")
+    hit_delta_v_threshold: float = Field(1.5, ge=0, description="m/s: a ball's velocity change beyond gravity's")
+    proj_dist_min: float = Field(8.0, gt=0, description="m")
+    proj_dist_max: float = Field(10.0, gt=0, description="m")
+    proj_h_min: float = Field(0.5, ge=0, description="m; at least the ball's radius (0.1)")
+    proj_h_max: float = Field(2.5, ge=0, description="m")
+    proj_speed_min: float = Field(12.0, gt=0, description="m/s")
+    proj_speed_max: float = Field(15.0, gt=0, description="m/s")
+    proj_trigger_time_min: float = Field(1.0, ge=0, description="s")
+    proj_trigger_time_max: float = Field(4.0, ge=0, description="s")
+    proj_aim_noise_scale: float = Field(0.1, ge=0, description="m: std of the aim point's Gaussian noise")
+
+    @model_validator(mode="after")
+    def _ranges_ordered(self) -> TaskDodgeballEnvConfig:
+        for name in ("proj_dist", "proj_h", "proj_speed", "proj_trigger_time"):
+            lo, hi = getattr(self, f"{name}_min"), getattr(self, f"{name}_max")
+            if lo > hi:
+                raise ValueError(f"{name}_min {lo} > {name}_max {hi}")
+        return self
+
+
 class ASEEnvConfig(AMPEnvConfig):
     """AMP's fields plus the chance of starting an episode from the default pose."""
 

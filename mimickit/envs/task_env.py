@@ -7,8 +7,8 @@ observation appended to the character observation, a task reward in `info["rewar
 and at a random time U[tar_change_time_min, max] after the previous one, and one visual marker per
 env showing the target (only with visualize). The root position is saved before physics so the task
 rewards can use the root velocity over the whole control step, as the reference does.
-The reference derives these envs from SMPEnv; its SMP-only code is inactive for AMP agents and is not
-ported.
+As the reference's, they derive from SMPEnv: an SMP agent may give them a GSI init-state buffer
+(`init_gsi_buffer`), which only changes where resets start; without one they are AMP envs.
 """
 
 from __future__ import annotations
@@ -18,15 +18,15 @@ import abc
 import torch
 
 from mimickit.engines.engine import ObjType
-from mimickit.envs.amp_env import AMPEnv
 from mimickit.envs.env_config import TaskLocationEnvConfig, TaskSteeringEnvConfig
+from mimickit.envs.smp_env import SMPEnv
 from mimickit.envs.viewable import ShowsTaskTarget
 from mimickit.util import torch_util as tu
 
 MARKER_COLOR = (0.8, 0.3, 0.1)
 
 
-class AMPTaskEnv(AMPEnv, ShowsTaskTarget, abc.ABC):
+class AMPTaskEnv(SMPEnv, ShowsTaskTarget, abc.ABC):
     config: TaskLocationEnvConfig | TaskSteeringEnvConfig  # type: ignore[assignment]
     marker_file = ""  # MJCF of the target marker (data/... path, looked up like every asset)
 

@@ -134,6 +134,34 @@ def quat_to_tan_norm(q: torch.Tensor) -> torch.Tensor:
     return torch.stack(columns, dim=-1)
 
 
+def matrix_to_quat(m: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices [..., 3, 3] to unit quaternions [..., 4] (xyzw, w >= 0) by Shepperd's method: of
+    the four formulas, each proportional to q, the one with the largest pivot (accurate at any angle)."""
+    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    candidates = torch.stack(
+        [
+            torch.stack([1 + m00 - m11 - m22, m01 + m10, m02 + m20, m21 - m12], dim=-1),  # 4x · q
+            torch.stack([m01 + m10, 1 - m00 + m11 - m22, m12 + m21, m02 - m20], dim=-1),  # 4y · q
+            torch.stack([m02 + m20, m12 + m21, 1 - m00 - m11 + m22, m10 - m01], dim=-1),  # 4z · q
+            torch.stack([m21 - m12, m02 - m20, m10 - m01, 1 + m00 + m11 + m22], dim=-1),  # 4w · q
+        ],
+        dim=-2,
+    )
+    pivots = torch.stack([m00 - m11 - m22, m11 - m00 - m22, m22 - m00 - m11, m00 + m11 + m22], dim=-1)
+    best = pivots.argmax(dim=-1)[..., None, None].expand(*pivots.shape[:-1], 1, 4)
+    q = candidates.gather(-2, best).squeeze(-2)
+    return quat_pos(q / torch.linalg.norm(q, dim=-1, keepdim=True).clamp_min(1e-12))
+
+
+def tan_norm_to_quat(tan_norm: torch.Tensor) -> torch.Tensor:
+    """The inverse of `quat_to_tan_norm`: [..., 6] (R·x, R·z) to unit quaternions [..., 4] (w >= 0). As the
+    reference, the matrix is [tan, norm × tan, norm] without re-orthogonalising a generated pair."""
+    tan, norm = tan_norm[..., 0:3], tan_norm[..., 3:6]
+    return matrix_to_quat(torch.stack([tan, torch.linalg.cross(norm, tan), norm], dim=-1))
+
+
 def calc_heading(q: torch.Tensor) -> torch.Tensor:
     """Yaw angle of the rotated x axis about world z, [...]."""
     x = torch.zeros(*q.shape[:-1], 3, dtype=q.dtype, device=q.device)

@@ -13,7 +13,17 @@ from mimickit.util.paths import PROJECT_DATA_DIR
 
 ENGINE = PROJECT_DATA_DIR / "engines" / "mujoco_engine.yaml"
 DEEPMIMIC = PROJECT_DATA_DIR / "envs" / "deepmimic_humanoid_env.yaml"
-TRACKING = {"deepmimic", "static_objects", "amp", "add", "ase", "task_location", "task_steering"}
+TRACKING = {
+    "deepmimic",
+    "static_objects",
+    "amp",
+    "add",
+    "ase",
+    "smp",
+    "task_location",
+    "task_steering",
+    "task_dodgeball",
+}
 # Rewarded for the reference's pose at each step; AMP's are for its style.
 POSE_TRACKING = {"deepmimic", "static_objects", "add"}
 

@@ -108,3 +108,15 @@ def test_matrix_matches_rotate():
     torch.testing.assert_close(
         (tu.quat_to_matrix(qs) @ v.unsqueeze(-1)).squeeze(-1), tu.quat_rotate(qs, v), atol=1e-5, rtol=0
     )
+
+
+def test_tan_norm_to_quat_inverts_quat_to_tan_norm_at_any_angle() -> None:
+    """Shepperd's pivot keeps half-turns (an axis from a vanishing skew part elsewhere) as exact as the rest."""
+    q = tu.quat_pos(tu.quat_normalize(torch.randn(4096, 4, dtype=torch.float64)))
+    half_turns = tu.quat_from_axis_angle(torch.randn(64, 3, dtype=torch.float64), torch.full((64,), math.pi))
+    q = torch.cat([q, tu.quat_pos(half_turns), tu.quat_identity((1,)).double()])
+    back = tu.tan_norm_to_quat(tu.quat_to_tan_norm(q))
+    assert float(tu.quat_diff_angle(back, q).max()) < 1e-6
+    torch.testing.assert_close(back.norm(dim=-1), torch.ones(len(q), dtype=torch.float64))
+    m = tu.quat_to_matrix(q)
+    torch.testing.assert_close(tu.quat_to_matrix(tu.matrix_to_quat(m)), m)
