@@ -69,7 +69,7 @@ $(NEWTON_STAMP): pyproject.toml
 	$(PY) -m venv $(NEWTON_VENV)
 	$(NEWTON_BIN)/pip install -q --upgrade pip
 	$(NEWTON_BIN)/pip install -q torch==2.13.0
-	$(NEWTON_BIN)/pip install -q -e ".[dev,newton]"
+	$(NEWTON_BIN)/pip install -q -e ".[dev,newton,smp]"
 	touch $(NEWTON_STAMP)
 
 test-newton: setup-newton

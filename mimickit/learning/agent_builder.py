@@ -22,6 +22,7 @@ from mimickit.learning.agent_config import (
     DummyAgentConfig,
     LCPAgentConfig,
     PPOAgentConfig,
+    SMPAgentConfig,
 )
 from mimickit.learning.base_agent import BaseAgent
 from mimickit.util.config import load_yaml, parse_config
@@ -39,9 +40,9 @@ AGENTS: Registry[BaseAgentConfig, BaseAgent] = Registry(
         "ADD": Entry(ADDAgentConfig, "mimickit.learning.add_agent:ADDAgent"),
         "ASE": Entry(ASEAgentConfig, "mimickit.learning.ase_agent:ASEAgent"),
         "LCP": Entry(LCPAgentConfig, "mimickit.learning.ppo_agent:PPOAgent"),
+        "SMP": Entry(SMPAgentConfig, "mimickit.learning.smp_agent:SMPAgent"),
         "Dummy": Entry(DummyAgentConfig, "mimickit.learning.dummy_agent:DummyAgent"),
     },
-    not_ported={"SMP": "not ported yet"},
 )
 """Every agent by its yaml `agent_name`: `load_agent_config` and the builders below use this table."""
 

@@ -34,6 +34,7 @@ MAX_EPOCHS = 1_000
 MAX_TEST_EPISODES = 10_000_000
 MAX_DISC_BUFFER = 2_000_000  # disc obs rows; the humanoid's 200,000 take about 1.1 GB
 MAX_LATENT_DIM = 4_096
+MAX_DIFFUSION_STEPS = 64  # noise levels an SMP reward evaluates the prior at (the reference's: 3)
 
 
 class OptimizerConfig(ConfigModel):
@@ -191,4 +192,46 @@ class ASEAgentConfig(AMPAgentConfig):
     def _latent_times_ordered(self) -> ASEAgentConfig:
         if self.latent_time_max < self.latent_time_min:
             raise ValueError("latent_time_max must be >= latent_time_min")
+        return self
+
+
+class SMPAgentConfig(PPOAgentConfig):
+    """PPO whose reward mixes the task's with a motion prior's: r = task_reward_weight · r_task +
+    smp_reward_weight · r_smp, r_smp = exp(−sds_loss_scale · mean_t(SDS loss_t / running mean |loss_t|))
+    · smp_reward_scale, the SDS losses at `diffusion_steps` of the frozen TinyMDM prior on the env's disc
+    obs. `enable_gsi`: resets start from states the prior generates (generative state initialisation)."""
+
+    agent_name: Literal["SMP"] = "SMP"  # type: ignore[assignment]
+    smp_prior_cfg: str
+    """The prior's config (`diffusion_config.yaml` of `mimickit train-prior`, or a data/priors/ yaml)."""
+    smp_prior_model: str
+    """The prior's weights (`model.pt` of `mimickit train-prior`)."""
+    smp_eval_batch_size: int = Field(ge=1)
+    """Samples per prior evaluation when computing rewards."""
+    sds_loss_scale: float
+    smp_reward_scale: float = 1.0
+    diffusion_steps: list[int] = Field(min_length=1, max_length=MAX_DIFFUSION_STEPS)
+    """Noise levels t the SDS loss is evaluated at, each below the prior's T."""
+    sds_normalizer_samples: float = Field(default=math.inf, ge=0)
+    """Samples after which the SDS losses' running mean |loss| stops updating."""
+    task_reward_weight: float
+    smp_reward_weight: float
+    enable_gsi: bool = False
+    gsi_iters: int = Field(default=50, ge=1)
+    """Iterations between refills of the GSI buffer (`gsi_regen_num_motions` new states each)."""
+    gsi_sampler: Literal["ddpm", "ddim"] = "ddpm"
+    gsi_inference_steps: int = Field(default=10, ge=1, le=MAX_EPOCHS)
+    """Denoising steps of the ddim sampler (ddpm takes all of the prior's T)."""
+    gsi_buffer_size: int = Field(default=4096, ge=1, le=MAX_DISC_BUFFER)
+    gsi_regen_num_motions: int = Field(default=1024, ge=1, le=MAX_DISC_BUFFER)
+    gsi_batch_size: int = Field(default=256, ge=1, le=MAX_DISC_BUFFER)
+    critic_loss_weight: Literal[1.0] = 1.0
+    """In the reference's SMP yamls, never read by its code: accepted as 1.0 (the critic loss unweighted) only."""
+
+    @model_validator(mode="after")
+    def _gsi_sizes_ordered(self) -> SMPAgentConfig:
+        if self.gsi_buffer_size < self.gsi_regen_num_motions:
+            raise ValueError("gsi_buffer_size must be >= gsi_regen_num_motions")
+        if self.gsi_regen_num_motions < self.gsi_batch_size:
+            raise ValueError("gsi_regen_num_motions must be >= gsi_batch_size")
         return self

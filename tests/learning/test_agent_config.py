@@ -23,7 +23,8 @@ def test_shipped_humanoid_yamls_have_the_reference_values():
     "text, needle",
     [
         ("agent_name: PPO\nmodel: {}\n", "missing required key"),
-        ("agent_name: SMP\n", "not ported yet"),
+        ("agent_name: SMP\n", "missing required key"),
+        ("agent_name: SAC\n", "is not supported"),
         ("discount: 0.9\n", "missing required key 'agent_name'"),
     ],
 )

@@ -232,12 +232,12 @@ def test_train_prior_on_one_clip_lowers_loss_and_reloads(
     state = torch.load(out / "model.pt", weights_only=True)
     assert set(state) == reference_keys(2)
     saved = yaml.safe_load((out / "diffusion_config.yaml").read_text())
-    assert saved["input_dim"] == 1420 and saved["input_channel"] == 142 and saved["num_iterations"] == 50
+    assert saved["input_dim"] == 1140 and saved["input_channel"] == 114 and saved["num_iterations"] == 50
     assert Path(saved["env_config"]) == out / "env_config.yaml" and (out / "env_config.yaml").is_file()
 
     trained = result["model"]
     loaded = load_prior(out / "diffusion_config.yaml", out / "model.pt")
-    x = torch.randn(16, 1420, generator=torch.Generator().manual_seed(4))
+    x = torch.randn(16, 1140, generator=torch.Generator().manual_seed(4))
     torch.manual_seed(5)
     a = trained.ESM_SDS_loss(trained.normalize(x), [5, 20, 40])
     torch.manual_seed(5)
