@@ -62,6 +62,8 @@ def agent_type(state: dict[str, Any]) -> tuple[str, str]:
     if isinstance(ts, dict) and ts.get("agent_name"):
         return str(ts["agent_name"]), "named in _train_state"
     keys = [k for k in state if k != TRAIN_STATE_KEY]
+    if any(k.startswith("_prior_model.") for k in keys):
+        return "SMP", "motion prior keys (_prior_model)"
     if any("_enc" in k for k in keys):
         return "ASE", "encoder keys (_enc)"
     if any("_disc" in k for k in keys):

@@ -293,6 +293,7 @@ def test_agent_type_from_keys() -> None:
     assert agent_type(base)[0] == "PPO or AWR"
     assert agent_type({**base, "_model._disc_layers.0.weight": t})[0] == "AMP or ADD"
     assert agent_type({**base, "_model._enc_layers.0.weight": t, "_model._disc_layers.0.weight": t})[0] == "ASE"
+    assert agent_type({**base, "_prior_model.dmodel.proj_in.weight": t})[0] == "SMP"
     assert agent_type({**base, "_train_state": {"agent_name": "AWR"}})[0] == "AWR"
     assert fit_message((464, 28), (464, 12), "go2") == (
         "the checkpoint does not fit go2: it was trained on actions of 28 values, go2 takes 12 (a different character?)"
