@@ -7,6 +7,8 @@ generative state initialisation (GSI) on MuJoCo, saves the prior inside its chec
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -24,7 +26,7 @@ from mimickit.learning.smp_agent import calc_smp_rewards  # noqa: E402
 from mimickit.learning.tinymdm.tinymdm_model import load_prior  # noqa: E402
 from mimickit.tools.train_prior import train_prior  # noqa: E402
 from mimickit.util.errors import MimicKitError  # noqa: E402
-from mimickit.util.paths import PROJECT_DATA_DIR  # noqa: E402
+from mimickit.util.paths import PROJECT_DATA_DIR, PROJECT_ROOT  # noqa: E402
 from tests.learning.conftest import ppo_config_dict  # noqa: E402
 
 ENGINE = PROJECT_DATA_DIR / "engines/mujoco_engine.yaml"
@@ -137,3 +139,28 @@ def test_gsi_sizes_must_nest() -> None:
 def test_the_shipped_smp_yamls_load(name: str) -> None:
     config = load_agent_config(PROJECT_DATA_DIR / "agents" / name)
     assert isinstance(config, SMPAgentConfig) and config.diffusion_steps == [22, 15, 8]
+
+
+SMP_ARG_FILES = ["smp_humanoid_args.txt", "smp_location_humanoid_args.txt", "smp_steering_humanoid_args.txt",
+                 "smp_dodgeball_humanoid_args.txt"]  # fmt: skip
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("arg_file", SMP_ARG_FILES)
+def test_each_smp_arg_file_trains_two_iterations_on_the_shipped_prior(arg_file: str, tmp_path: Path, test_data) -> None:
+    """MimicKit's SMP arg files' counterparts, through `mimickit train` with 2 envs: two iterations, the
+    prior's reward logged, a checkpoint that holds the shipped prior."""
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "mimickit.cli", "train", "--arg_file", f"args/{arg_file}", "--data_dir",
+           str(test_data), "--num_envs", "2", "--max_samples", "128", "--out_dir", str(out),
+           "--rand_seed", "0"]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=PROJECT_ROOT)
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [r["samples"] for r in rows] == [64, 128]
+    assert all(0 <= r["smp_reward_mean"] <= 1 and r["sds_loss_mean"] > 0 for r in rows)
+    state = torch.load(out / "model.pt", weights_only=True)
+    prior_file = load_agent_config(out / "agent_config.yaml").smp_prior_model
+    shipped = torch.load(PROJECT_DATA_DIR.parent / prior_file, weights_only=True)
+    for k, v in shipped.items():
+        torch.testing.assert_close(state[f"_prior_model.{k}"], v, msg=k)
