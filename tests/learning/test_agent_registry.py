@@ -59,7 +59,6 @@ def test_an_unknown_agent_name_is_one_line_naming_the_nearest(tmp_path):
 @pytest.mark.parametrize(
     "value, needle",
     [
-        ("SMP", "agent 'SMP' is not supported (not ported yet); supported agents: PPO,"),
         ("Zebra", f"agent 'Zebra' is not supported; {supported_list(AGENTS)}"),
         ("[PPO]", "agent ['PPO'] is not supported"),
         ("3", "agent 3 is not supported"),
