@@ -68,8 +68,15 @@ def test_push_from_the_panel_is_recorded_and_marked(page, server: StudioProcess,
         last = server.get("/api/scene/state").json()["rollout"]["push"]["last"]
         assert (last["body"], last["force"], last["steps"]) == ("pelvis", [0.0, 3000.0, 0.0], 6)
         wait_for(lambda: markers(page) >= 1, WAIT_S, "the push marker on the reward plot", page=page)
-        # 3000 N sideways for 0.2 s throws the demo policy: a fall after the push, marked too.
-        wait_for(lambda: status.get_attribute("data-fell"), WAIT_S, "the fall after the push", page=page)
+        # 3000 N sideways for 0.2 s throws the demo policy from most starts: a fall after the push, marked too.
+        # From some starts it recovers (CI once waited 90 s for no fall): then a harder shove, pushed likewise.
+        try:
+            wait_for(lambda: status.get_attribute("data-fell"), WAIT_S / 3, "the fall after the push", page=page)
+        except AssertionError:
+            page.locator("#push-force").fill("5000")
+            page.select_option("#push-duration", "0.5")
+            page.click("#push-button")
+            wait_for(lambda: status.get_attribute("data-fell"), WAIT_S, "the fall after a second push", page=page)
         assert " fell " in status.inner_text() and "after a push" in status.inner_text()
         wait_for(lambda: markers(page) >= 2, WAIT_S, "the fall marker on the reward plot", page=page)
 
