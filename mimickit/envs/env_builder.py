@@ -65,20 +65,25 @@ ENVS: Registry[CharEnvConfig, SimEnv] = Registry(
 """Every env by its yaml `env_name`: `load_env_configs` and the builders below use this table."""
 
 
+def parse_env_config(raw: dict, env_file: str | Path) -> CharEnvConfig:
+    """The env config of a loaded env yaml `raw` (fields under `env:` or at the top), validated by the
+    config class of its `env_name`."""
+    env_name = raw.get("env_name")
+    if env_name is None:
+        raise MimicKitError(f"{env_file}: missing required key 'env_name'")
+    if env_name not in ENVS:
+        raise MimicKitError(f"{env_file}: key 'env_name': {ENVS.unknown(env_name)}")
+    return parse_config(ENVS.config_class(env_name), {**env_fields(raw, env_file), "env_name": env_name}, env_file)
+
+
 def load_env_configs(
     env_file: str | Path, engine_file: str | Path | None, motion_file: str | Path | None = None
 ) -> tuple[CharEnvConfig, EngineConfig]:
     """Read and validate an env yaml and an engine yaml (the env's `engine:` block merged in);
     `motion_file` (`--motion_file`) replaces the env's clip or dataset."""
     raw = load_yaml(env_file)
-    env_name = raw.get("env_name")
-    if env_name is None:
-        raise MimicKitError(f"{env_file}: missing required key 'env_name'")
-    if env_name not in ENVS:
-        raise MimicKitError(f"{env_file}: key 'env_name': {ENVS.unknown(env_name)}")
-    fields = env_fields(raw, env_file)
-    fields["env_name"] = env_name
-    env_cfg = parse_config(ENVS.config_class(env_name), fields, env_file)
+    env_cfg = parse_env_config(raw, env_file)
+    env_name = env_cfg.env_name
     if motion_file is not None:
         if not hasattr(env_cfg, "motion_file"):
             raise MimicKitError(f"--motion_file: env {env_name!r} ({env_file}) has no motion_file to replace")

@@ -17,11 +17,11 @@ import torch
 from mimickit.anim.mjcf_char_model import load_char_model
 from mimickit.anim.motion_lib import MotionLib
 from mimickit.envs.amp_env import compute_disc_obs
-from mimickit.envs.env_builder import ENVS, env_fields
+from mimickit.envs.env_builder import parse_env_config
 from mimickit.envs.env_config import AMPEnvConfig
 from mimickit.learning.tinymdm.prior_config import PriorConfig
 from mimickit.util import torch_util as tu
-from mimickit.util.config import load_yaml, parse_config
+from mimickit.util.config import load_yaml
 from mimickit.util.errors import MimicKitError
 from mimickit.util.paths import PROJECT_DATA, DataPaths
 
@@ -29,16 +29,9 @@ from mimickit.util.paths import PROJECT_DATA, DataPaths
 def load_prior_env_config(env_file: str | Path) -> AMPEnvConfig:
     """The env yaml of a prior (either layout: fields under `env:` or at the top), validated by its
     env's config class, which must have disc obs (an AMP env or one derived from it)."""
-    raw = load_yaml(env_file)
-    env_name = raw.get("env_name")
-    if env_name is None:
-        raise MimicKitError(f"{env_file}: missing required key 'env_name'")
-    if env_name not in ENVS:
-        raise MimicKitError(f"{env_file}: key 'env_name': {ENVS.unknown(env_name)}")
-    fields = {**env_fields(raw, env_file), "env_name": env_name}
-    cfg = parse_config(ENVS.config_class(env_name), fields, env_file)
+    cfg = parse_env_config(load_yaml(env_file), env_file)
     if not isinstance(cfg, AMPEnvConfig):
-        raise MimicKitError(f"{env_file}: env {env_name!r} has no disc obs (num_disc_obs_steps): not a prior's env")
+        raise MimicKitError(f"{env_file}: env {cfg.env_name!r} has no disc obs (num_disc_obs_steps): not a prior's env")
     return cfg
 
 
